@@ -1,0 +1,37 @@
+"""L1 Flow: two-step sample-prediction flow-matching policies for TorchRL.
+
+Quick use::
+
+    from l1flow_rl import L1FlowActor, L1FlowLoss
+    actor = L1FlowActor.for_state(obs_dim=D, action_dim=A, down_dims=(64, 128, 256))
+    loss_fn = L1FlowLoss(actor)
+"""
+
+from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.ema import dp_ema_decay, make_ema
+from l1flow_rl.normalizer import Normalizer, NormalizerDict
+from l1flow_rl.objectives import DiffusionLoss, FlowMatchingLoss, L1FlowLoss, RegressionLoss
+from l1flow_rl.policy import ChunkPolicy
+
+__all__ = [
+    "ChunkPolicy",
+    "DiffusionLoss",
+    "FlowMatchingLoss",
+    "L1FlowActor",
+    "L1FlowLoss",
+    "Normalizer",
+    "NormalizerDict",
+    "RegressionLoss",
+    "dp_ema_decay",
+    "evaluate",
+    "make_ema",
+]
+
+
+def __getattr__(name: str):
+    # Lazy: the evaluator pulls in environment code that the core does not need.
+    if name == "evaluate":
+        from l1flow_rl.evaluation import evaluate
+
+        return evaluate
+    raise AttributeError(f"module 'l1flow_rl' has no attribute {name!r}")

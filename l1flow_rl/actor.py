@@ -1,0 +1,120 @@
+"""The chunk actor as a TensorDictModule: observation history in, executable action window out."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+from tensordict.nn import TensorDictModule
+from tensordict.utils import NestedKey
+
+from l1flow_rl.flow.samplers import ChunkSampler, TwoStepSampler
+from l1flow_rl.networks.encoders import ObservationEncoder, StateEncoder
+from l1flow_rl.networks.unet1d import ConditionalUnet1D
+from l1flow_rl.policy import STATE_KEY, ChunkPolicy
+
+__all__ = ["L1FlowActor"]
+
+class L1FlowActor(TensorDictModule):
+    """Reads ``in_keys[0]`` (observation history [*B, To, ...]) and writes ``out_keys[0]`` (the
+    executable window [*B, K, A]: steps [To-1, To-1+K) of the predicted horizon H).
+
+    The writing key defaults to ``"action_chunk"``, which TorchRL's ``MultiStepActorWrapper``
+    maps to the env's ``"action"``. The sampler is pluggable; the default is L1 Flow's
+    ``TwoStepSampler(0.5)`` (2 network evaluations per chunk). Under
+    ``set_exploration_type(ExplorationType.DETERMINISTIC)`` the chunk starts from zero noise.
+
+    The baselines use the same actor with their own sampler: ``DDPMSampler()`` / ``DDIMSampler(k)``
+    for :class:`~l1flow_rl.DiffusionLoss`, ``VelocityEulerSampler(10)`` for
+    :class:`~l1flow_rl.FlowMatchingLoss`, ``DirectSampler()`` for :class:`~l1flow_rl.RegressionLoss`.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from l1flow_rl import L1FlowActor
+        >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64))
+        >>> actor(TensorDict({"observation": torch.randn(3, 2, 5)}, batch_size=[3]))["action_chunk"].shape
+        torch.Size([3, 8, 2])
+    """
+
+    def __init__(
+        self,
+        policy: ChunkPolicy,
+        *,
+        in_keys: Sequence[NestedKey] = ("observation",),
+        out_keys: Sequence[NestedKey] = ("action_chunk",),
+    ) -> None:
+        super().__init__(policy, in_keys=list(in_keys), out_keys=list(out_keys))
+
+    @property
+    def policy(self) -> ChunkPolicy:
+        return self.module  # type: ignore[return-value]
+
+    @property
+    def sampler(self) -> ChunkSampler:
+        return self.policy.sampler
+
+    @classmethod
+    def build(
+        cls,
+        encoder: ObservationEncoder,
+        *,
+        action_dim: int,
+        obs_horizon: int = 2,
+        pred_horizon: int = 16,
+        action_steps: int = 8,
+        down_dims: Sequence[int] = (256, 512, 1024),
+        timestep_embed_dim: int = 128,
+        kernel_size: int = 5,
+        n_groups: int = 8,
+        sampler: ChunkSampler | None = None,
+        in_keys: Sequence[NestedKey] = ("observation",),
+        out_keys: Sequence[NestedKey] = ("action_chunk",),
+    ) -> L1FlowActor:
+        """Actor on Diffusion Policy's ConditionalUnet1D for any observation encoder."""
+        sampler = sampler if sampler is not None else TwoStepSampler(0.5)
+        net = ConditionalUnet1D(
+            action_dim,
+            global_cond_dim=obs_horizon * encoder.feature_dim,
+            down_dims=down_dims,
+            timestep_embed_dim=timestep_embed_dim if sampler.uses_timestep else 0,
+            kernel_size=kernel_size,
+            n_groups=n_groups,
+        )
+        policy = ChunkPolicy(
+            net,
+            encoder,
+            sampler,
+            action_dim=action_dim,
+            obs_horizon=obs_horizon,
+            pred_horizon=pred_horizon,
+            action_steps=action_steps,
+        )
+        return cls(policy, in_keys=in_keys, out_keys=out_keys)
+
+    @classmethod
+    def for_state(
+        cls,
+        obs_dim: int | Mapping[str, int],
+        action_dim: int,
+        obs_horizon: int = 2,
+        pred_horizon: int = 16,
+        action_steps: int = 8,
+        down_dims: Sequence[int] = (256, 512, 1024),
+        **kwargs,
+    ) -> L1FlowActor:
+        """Actor for flat state observations.
+
+        ``obs_dim`` is an int for a tensor observation [*B, To, D], or a mapping entry -> dim
+        when the observation is a TensorDict of several flat entries. Other keyword arguments
+        go to :meth:`build` (``sampler``, ``timestep_embed_dim``, ``in_keys``, ...).
+        """
+        dims = {STATE_KEY: int(obs_dim)} if isinstance(obs_dim, int) else dict(obs_dim)
+        return cls.build(
+            StateEncoder(dims),
+            action_dim=action_dim,
+            obs_horizon=obs_horizon,
+            pred_horizon=pred_horizon,
+            action_steps=action_steps,
+            down_dims=down_dims,
+            **kwargs,
+        )

@@ -1,0 +1,43 @@
+"""Flow and diffusion maths shared by every policy: time convention, timestep laws, objectives, samplers."""
+
+from l1flow_rl.flow.diffusion_schedule import DiffusionSchedule
+from l1flow_rl.flow.objectives import sample_prediction_error
+from l1flow_rl.flow.samplers import (
+    ChunkSampler,
+    DDIMSampler,
+    DDPMSampler,
+    DirectSampler,
+    EulerSampler,
+    TwoStepSampler,
+    VelocityEulerSampler,
+    make_sampler,
+)
+from l1flow_rl.flow.time import check_time, interpolate, velocity_from_sample
+from l1flow_rl.flow.timesteps import (
+    BetaTimesteps,
+    MixedLogitNormalTimesteps,
+    TimestepDistribution,
+    UniformTimesteps,
+    make_timesteps,
+)
+
+__all__ = [
+    "BetaTimesteps",
+    "ChunkSampler",
+    "DDIMSampler",
+    "DDPMSampler",
+    "DiffusionSchedule",
+    "DirectSampler",
+    "EulerSampler",
+    "MixedLogitNormalTimesteps",
+    "TimestepDistribution",
+    "TwoStepSampler",
+    "UniformTimesteps",
+    "VelocityEulerSampler",
+    "check_time",
+    "interpolate",
+    "make_sampler",
+    "make_timesteps",
+    "sample_prediction_error",
+    "velocity_from_sample",
+]

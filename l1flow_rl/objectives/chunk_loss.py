@@ -1,0 +1,167 @@
+"""What every chunk-policy loss shares: key handling, input checks, masking and reduction."""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule
+from tensordict.utils import NestedKey
+from torch import Tensor
+from torchrl.objectives import LossModule
+
+from l1flow_rl.policy import ChunkPolicy
+
+__all__ = ["ChunkLossBase"]
+
+
+class ChunkLossBase(LossModule):
+    """Base for losses that train a :class:`~l1flow_rl.actor.L1FlowActor`'s network on action chunks.
+
+    Subclasses set ``loss_name``, ``prediction`` (the sampler target they train for) and implement
+    :meth:`_elementwise_loss`.
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Configurable tensordict keys.
+
+        Attributes:
+            observation (NestedKey): observation history, [*B, To, D] or a TensorDict of entries.
+                Defaults to ``"observation"``.
+            action_chunk (NestedKey): demonstrated chunk, [*B, H, A], in environment units.
+                Defaults to ``"action_chunk"``.
+            action_is_pad (NestedKey): optional [*B, H] bool, True where the chunk step is edge
+                padding; those steps are left out of the loss. Defaults to ``"action_is_pad"``.
+        """
+
+        observation: NestedKey = "observation"
+        action_chunk: NestedKey = "action_chunk"
+        action_is_pad: NestedKey = "action_is_pad"
+
+    default_keys = _AcceptedKeys
+    tensor_keys: _AcceptedKeys
+    actor_network: TensorDictModule
+    actor_network_params: TensorDictBase
+    target_actor_network_params: TensorDictBase
+
+    loss_name: str = "loss"
+    prediction: str = ""
+    sampler_hint: str = ""
+
+    def __init__(self, actor_network: TensorDictModule, *, reduction: str = "mean", mask_padding: bool = True):
+        if reduction not in ("mean", "sum", "none"):
+            raise ValueError(f"reduction must be 'mean', 'sum' or 'none', got {reduction!r}")
+        self._in_keys = None
+        self._out_keys = None
+        super().__init__()
+        policy = getattr(actor_network, "module", None)
+        if not isinstance(policy, ChunkPolicy):
+            raise TypeError(
+                f"{type(self).__name__} needs an L1FlowActor (a TensorDictModule around a ChunkPolicy), "
+                f"got {type(actor_network).__name__}"
+            )
+        if policy.sampler.prediction != self.prediction:
+            raise ValueError(
+                f"{type(self).__name__} trains a network that predicts {self.prediction!r}, but the actor's "
+                f"sampler {policy.sampler!r} expects {policy.sampler.prediction!r}; build the actor with "
+                f"{self.sampler_hint}"
+            )
+        self.convert_to_functional(actor_network, "actor_network")
+        self.reduction = reduction
+        self.mask_padding = mask_padding
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass  # no value estimator: a behaviour-cloning loss
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        if self._in_keys is None:
+            keys = self.tensor_keys
+            self._in_keys = [keys.observation, keys.action_chunk, keys.action_is_pad]
+        return self._in_keys
+
+    @in_keys.setter
+    def in_keys(self, value: list[NestedKey]) -> None:
+        self._in_keys = value
+
+    @property
+    def out_keys(self) -> list[NestedKey]:
+        if self._out_keys is None:
+            self._out_keys = [self.loss_name, *self.diagnostic_keys]
+        return self._out_keys
+
+    @out_keys.setter
+    def out_keys(self, value: list[NestedKey]) -> None:
+        self._out_keys = value
+
+    diagnostic_keys: tuple[str, ...] = ()
+
+    @property
+    def policy(self) -> ChunkPolicy:
+        return self.actor_network.module  # type: ignore[return-value]
+
+    # -- input handling -----------------------------------------------------------------------
+    def _get(self, td: TensorDictBase, key: NestedKey, what: str):
+        value = td.get(key, default=None)
+        if value is None:
+            raise KeyError(
+                f"{type(self).__name__}: the input has no {key!r} entry ({what}); present keys: "
+                f"{sorted(map(str, td.keys(True, True)))}. Use set_keys(...) to point at another key."
+            )
+        return value
+
+    def _read_batch(self, td: TensorDictBase) -> tuple[TensorDictBase, Tensor, Tensor | None, torch.Size]:
+        """Validated (flat observation TD [N, To], normalised chunk [N, H, A], valid mask [N, H] or None)."""
+        policy, keys = self.policy, self.tensor_keys
+        H, A = policy.pred_horizon, policy.action_dim
+        action = self._get(td, keys.action_chunk, f"the demonstrated chunk, [*B, {H}, {A}]")
+        if action.dim() < 2 or tuple(action.shape[-2:]) != (H, A):
+            raise ValueError(
+                f"{keys.action_chunk!r} must have shape [*B, {H}, {A}] (pred_horizon, action_dim), "
+                f"got {tuple(action.shape)}"
+            )
+        if not torch.isfinite(action).all():
+            bad = (~torch.isfinite(action)).reshape(-1, H * A).any(-1).nonzero()[:5, 0].tolist()
+            raise ValueError(f"{keys.action_chunk!r} contains NaN or Inf (flat batch rows {bad})")
+        batch = action.shape[:-2]
+        observation = self._get(td, keys.observation, f"the observation history, [*B, {policy.obs_horizon}, ...]")
+        obs = policy.as_obs_dict(observation, key=str(keys.observation))
+        n = action[..., 0, 0].numel()
+        if obs.shape[0] != n:
+            raise ValueError(
+                f"{keys.observation!r} holds {obs.shape[0]} samples but {keys.action_chunk!r} holds {n}"
+            )
+        valid = None
+        if self.mask_padding:
+            is_pad = td.get(keys.action_is_pad, default=None)
+            if is_pad is not None:
+                if tuple(is_pad.shape) != (*batch, H):
+                    raise ValueError(
+                        f"{keys.action_is_pad!r} must have shape {[*batch, H]}, got {tuple(is_pad.shape)}"
+                    )
+                valid = ~is_pad.reshape(n, H).bool()
+        x1 = policy.action_normalizer.normalize(action.reshape(n, H, A))
+        return obs, x1, valid, batch
+
+    # -- the loss ------------------------------------------------------------------------------
+    @abc.abstractmethod
+    def _elementwise_loss(self, cond: Tensor, x1: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+        """Element-wise loss [N, H, A] for normalised chunks ``x1`` and diagnostics."""
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        obs, x1, valid, batch = self._read_batch(tensordict)
+        with self.actor_network_params.to_module(self.actor_network):
+            cond = self.policy.encode(obs)
+            err, diagnostics = self._elementwise_loss(cond, x1)
+        mask = None if valid is None else valid.unsqueeze(-1).expand_as(err)
+        if self.reduction == "none":
+            loss = err if mask is None else torch.where(mask, err, torch.zeros_like(err))
+            loss = loss.reshape(*batch, *err.shape[1:])
+        else:
+            loss = self._reduce_loss(err, mask=mask)
+        out = {self.loss_name: loss}
+        out.update({k: v.detach() for k, v in diagnostics.items()})
+        return TensorDict(out, batch_size=[])

@@ -1,0 +1,52 @@
+"""Baseline: plain L1 regression of the chunk on the same network, with no noise and no timestep."""
+
+from __future__ import annotations
+
+import torch
+from tensordict.nn import TensorDictModule
+from torch import Tensor
+
+from l1flow_rl.flow.objectives import LossType
+from l1flow_rl.objectives.chunk_loss import ChunkLossBase
+
+__all__ = ["RegressionLoss"]
+
+
+class RegressionLoss(ChunkLossBase):
+    """``|f(0, obs) - x1|``: the UNet gets a zero chunk and no timestep (``DirectSampler``).
+
+    On multi-modal demonstrations this collapses to the conditional median/mean, which is the
+    contrast L1 Flow is measured against.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from l1flow_rl import L1FlowActor, RegressionLoss
+        >>> from l1flow_rl.flow import DirectSampler
+        >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64), sampler=DirectSampler())
+        >>> td = TensorDict({"observation": torch.randn(4, 2, 5),
+        ...                  "action_chunk": torch.rand(4, 16, 2) * 2 - 1}, batch_size=[4])
+        >>> RegressionLoss(actor)(td)["loss_regression"].backward()
+    """
+
+    loss_name = "loss_regression"
+    prediction = "direct"
+    sampler_hint = "L1FlowActor.for_state(..., sampler=DirectSampler())"
+    diagnostic_keys = ()
+
+    def __init__(
+        self,
+        actor_network: TensorDictModule,
+        *,
+        loss_type: LossType = "l1",
+        reduction: str = "mean",
+        mask_padding: bool = True,
+    ) -> None:
+        super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
+        if loss_type not in ("l1", "mse"):
+            raise ValueError(f"loss_type must be 'l1' or 'mse', got {loss_type!r}")
+        self.loss_type = loss_type
+
+    def _elementwise_loss(self, cond: Tensor, x1: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+        diff = self.policy.denoise(torch.zeros_like(x1), None, cond) - x1
+        return (diff.abs() if self.loss_type == "l1" else diff.square()), {}

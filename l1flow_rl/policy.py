@@ -1,0 +1,191 @@
+"""The chunked generative policy: normalise -> encode once -> sample a chunk -> unnormalise."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import InteractionType
+from tensordict.nn.probabilistic import interaction_type
+from torch import Tensor, nn
+
+from l1flow_rl.flow.samplers import ChunkSampler
+from l1flow_rl.networks.encoders import ObservationEncoder
+from l1flow_rl.networks.unet1d import ConditionalUnet1D
+from l1flow_rl.normalizer import Normalizer, NormalizerDict
+
+__all__ = ["STATE_KEY", "ChunkPolicy"]
+
+#: A plain tensor observation is treated as this single entry.
+STATE_KEY = "state"
+
+
+class ChunkPolicy(nn.Module):
+    """Everything needed to go from an observation history to an action chunk.
+
+    The network works in normalised units; ``obs_normalizer`` and ``action_normalizer`` live in
+    the state_dict so a saved policy acts in the environment's units.
+
+    Args:
+        net: the chunk denoiser (``ConditionalUnet1D``).
+        encoder: observation entries [N, To, ...] -> features [N, To, F].
+        sampler: integrates the network into a chunk; its ``prediction`` must match the loss.
+        obs_horizon: To. pred_horizon: H. action_steps: K, the executable window.
+    """
+
+    def __init__(
+        self,
+        net: ConditionalUnet1D,
+        encoder: ObservationEncoder,
+        sampler: ChunkSampler,
+        *,
+        action_dim: int,
+        obs_horizon: int,
+        pred_horizon: int,
+        action_steps: int,
+        normalize_obs: bool = True,
+    ) -> None:
+        super().__init__()
+        if obs_horizon < 1 or pred_horizon < 1 or action_steps < 1:
+            raise ValueError(
+                f"horizons must be >= 1, got obs_horizon={obs_horizon}, pred_horizon={pred_horizon}, "
+                f"action_steps={action_steps}"
+            )
+        if obs_horizon - 1 + action_steps > pred_horizon:
+            raise ValueError(
+                f"obs_horizon - 1 + action_steps = {obs_horizon - 1 + action_steps} exceeds pred_horizon="
+                f"{pred_horizon}: the executable window [To-1, To-1+K) must fit in the predicted chunk"
+            )
+        if net.global_cond_dim != obs_horizon * encoder.feature_dim:
+            raise ValueError(
+                f"net.global_cond_dim={net.global_cond_dim} must equal obs_horizon * encoder.feature_dim "
+                f"= {obs_horizon} * {encoder.feature_dim}"
+            )
+        if net.action_dim != action_dim:
+            raise ValueError(f"net.action_dim={net.action_dim} differs from action_dim={action_dim}")
+        if sampler.uses_timestep != bool(net.timestep_embed_dim):
+            raise ValueError(
+                f"{sampler!r} {'needs' if sampler.uses_timestep else 'takes no'} timestep, but the network was "
+                f"built with timestep_embed_dim={net.timestep_embed_dim}"
+            )
+        self.net, self.encoder, self.sampler = net, encoder, sampler
+        self.action_dim, self.obs_horizon = action_dim, obs_horizon
+        self.pred_horizon, self.action_steps = pred_horizon, action_steps
+        norm_shapes = (
+            {k: s for k, s in encoder.obs_shapes.items() if len(s) == 1} if normalize_obs else {}
+        )
+        self.obs_normalizer = NormalizerDict(norm_shapes)
+        self.action_normalizer = Normalizer(action_dim)
+
+    # -- observation handling -------------------------------------------------------------
+    def as_obs_dict(self, observation: Tensor | TensorDictBase, key: str = "observation") -> TensorDictBase:
+        """Validate an observation (tensor or TensorDict of entries) with batch dims [*B, To, ...]
+        and return it as a TensorDict flattened to batch [N, To]."""
+        if isinstance(observation, Tensor):
+            if set(self.encoder.obs_shapes) != {STATE_KEY}:
+                raise TypeError(
+                    f"{key!r} is a tensor, but the encoder expects entries {sorted(self.encoder.obs_shapes)}"
+                )
+            entries: dict[str, Tensor] = {STATE_KEY: observation}
+        elif isinstance(observation, TensorDictBase):
+            entries = {}
+            for k in self.encoder.obs_shapes:
+                if k not in observation.keys():
+                    raise KeyError(
+                        f"observation entry {(key, k)!r} is missing; the encoder expects "
+                        f"{sorted(self.encoder.obs_shapes)}"
+                    )
+                entries[k] = observation.get(k)
+        else:
+            raise TypeError(f"{key!r} must be a Tensor or a TensorDict, got {type(observation).__name__}")
+        batch: tuple[int, ...] | None = None
+        for k, v in entries.items():
+            shape = self.encoder.obs_shapes[k]
+            name = key if isinstance(observation, Tensor) else f"{key}.{k}"
+            nd = len(shape) + 1
+            if v.dim() < nd or tuple(v.shape[-nd:]) != (self.obs_horizon, *shape):
+                raise ValueError(
+                    f"{name!r} must have shape [*B, {self.obs_horizon}, {', '.join(map(str, shape))}] "
+                    f"(obs_horizon, entry shape), got {tuple(v.shape)}"
+                )
+            b = tuple(v.shape[:-nd])
+            if batch is not None and b != batch:
+                raise ValueError(f"{name!r} has batch dims {b}, other observation entries have {batch}")
+            batch = b
+            if v.is_floating_point() and not torch.isfinite(v).all():
+                raise ValueError(f"{name!r} contains NaN or Inf")
+        assert batch is not None
+        n = int(torch.tensor(batch).prod()) if batch else 1
+        flat = {k: v.reshape(n, self.obs_horizon, *self.encoder.obs_shapes[k]) for k, v in entries.items()}
+        return TensorDict(flat, batch_size=[n, self.obs_horizon])
+
+    def encode(self, obs: TensorDictBase) -> Tensor:
+        """Normalised global condition [N, To * F] from a flattened observation TensorDict."""
+        feats = self.encoder(self.obs_normalizer.normalize(obs))
+        return feats.reshape(feats.shape[0], -1)
+
+    def denoise(self, x: Tensor, t: Tensor | None, cond: Tensor) -> Tensor:
+        return self.net(x, t, cond)
+
+    # -- acting -----------------------------------------------------------------------------
+    def sample_chunk(
+        self,
+        observation: Tensor | TensorDictBase,
+        *,
+        deterministic: bool = False,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """Full predicted chunk [*B, H, A] in environment units."""
+        batch = self._batch_dims(observation)
+        obs = self.as_obs_dict(observation)
+        cond = self.encode(obs)  # once per chunk, shared by every network call
+        n = cond.shape[0]
+        shape = (n, self.pred_horizon, self.action_dim)
+        if deterministic:
+            x_init = torch.zeros(shape, device=cond.device, dtype=cond.dtype)
+        else:
+            x_init = torch.randn(shape, device=cond.device, dtype=cond.dtype, generator=generator)
+        x1 = self.sampler(
+            lambda x, t: self.denoise(x, t, cond), x_init, deterministic=deterministic, generator=generator
+        )
+        return self.action_normalizer.unnormalize(x1).reshape(*batch, self.pred_horizon, self.action_dim)
+
+    def executable(self, chunk: Tensor) -> Tensor:
+        """Steps [To-1, To-1+K) of a predicted chunk: the ones aligned with the current observation onward."""
+        start = self.obs_horizon - 1
+        return chunk[..., start : start + self.action_steps, :]
+
+    def forward(self, observation: Tensor | TensorDictBase, deterministic: bool | None = None) -> Tensor:
+        """Executable window [*B, K, A]. ``deterministic=None`` follows TensorDict's interaction type:
+        DETERMINISTIC (and MODE) start from zero noise, anything else samples."""
+        if deterministic is None:
+            deterministic = interaction_type() in (InteractionType.DETERMINISTIC, InteractionType.MODE)
+        return self.executable(self.sample_chunk(observation, deterministic=deterministic))
+
+    def _batch_dims(self, observation: Tensor | TensorDictBase) -> tuple[int, ...]:
+        if isinstance(observation, Tensor):
+            first = observation
+            shape: tuple[int, ...] = self.encoder.obs_shapes.get(STATE_KEY, ())
+        else:
+            k = next(iter(self.encoder.obs_shapes))
+            if k not in observation.keys():
+                return ()  # as_obs_dict raises the informative error
+            first, shape = observation.get(k), self.encoder.obs_shapes[k]
+        return tuple(first.shape[: max(first.dim() - len(shape) - 1, 0)])
+
+    # -- fitting normalisers from data -----------------------------------------------------
+    def fit_normalizers(
+        self,
+        observation: Mapping[str, Tensor] | Tensor | None = None,
+        action: Tensor | None = None,
+        mode: str = "limits",
+        obs_mode: str | None = None,
+    ) -> ChunkPolicy:
+        """Fit the normalisers from samples (entries [..., D] and actions [..., A])."""
+        if observation is not None:
+            data = {STATE_KEY: observation} if isinstance(observation, Tensor) else observation
+            self.obs_normalizer.fit(data, obs_mode or mode)  # type: ignore[arg-type]
+        if action is not None:
+            self.action_normalizer.fit(action, mode, name="action")  # type: ignore[arg-type]
+        return self
