@@ -1,0 +1,59 @@
+"""Turn a validated :class:`~l1flow_rl.config.PolicyConfig` into an actor and its loss."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from omegaconf import DictConfig, OmegaConf
+from torchrl.objectives import LossModule
+
+from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.flow.samplers import make_sampler
+from l1flow_rl.objectives import DiffusionLoss, FlowMatchingLoss, L1FlowLoss, RegressionLoss
+
+__all__ = ["LOSSES", "build_actor", "build_loss"]
+
+LOSSES: dict[str, type[LossModule]] = {
+    "l1flow": L1FlowLoss,
+    "flow_matching": FlowMatchingLoss,
+    "diffusion": DiffusionLoss,
+    "regression": RegressionLoss,
+}
+
+
+def _plain(cfg: DictConfig | Mapping) -> dict:
+    return OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)  # type: ignore[return-value]
+
+
+def build_actor(policy_cfg: DictConfig | Mapping, obs_shapes: Mapping[str, tuple[int, ...]], action_dim: int) -> L1FlowActor:
+    """Actor for the policy config and the dataset's observation entries (entry -> per-step shape)."""
+    p = _plain(policy_cfg)
+    non_flat = {k: s for k, s in obs_shapes.items() if len(s) != 1}
+    if non_flat:
+        raise ValueError(
+            f"observation entries {sorted(non_flat)} are images ({non_flat}); this release ships state "
+            "encoders only, so set task.obs_mode=state (image encoders are tracked separately)"
+        )
+    dims = {k: s[0] for k, s in obs_shapes.items()}
+    obs_dim: int | dict[str, int] = dims["state"] if set(dims) == {"state"} else dims
+    return L1FlowActor.for_state(
+        obs_dim,
+        action_dim,
+        obs_horizon=p["obs_horizon"],
+        pred_horizon=p["pred_horizon"],
+        action_steps=p["action_steps"],
+        down_dims=tuple(p["down_dims"]),
+        timestep_embed_dim=p["timestep_embed_dim"],
+        kernel_size=p["kernel_size"],
+        n_groups=p["n_groups"],
+        sampler=make_sampler(p["sampler"], **p.get("sampler_kwargs", {})),
+    )
+
+
+def build_loss(actor: L1FlowActor, policy_cfg: DictConfig | Mapping) -> LossModule:
+    p = _plain(policy_cfg)
+    try:
+        cls = LOSSES[p["loss"]]
+    except KeyError:
+        raise ValueError(f"policy.loss={p['loss']!r} is not one of {sorted(LOSSES)}") from None
+    return cls(actor, **p.get("loss_kwargs", {}))

@@ -1,0 +1,177 @@
+"""Checkpoints: atomic writes, safe loads (``weights_only=True``) and config checks.
+
+A checkpoint is a plain dict of tensors and builtins: model, EMA, optimiser, scheduler, step, the
+composed config, data shapes and RNG states. Nothing in it needs arbitrary unpickling.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+from l1flow_rl.actor import L1FlowActor
+
+__all__ = [
+    "CheckpointMismatchError",
+    "check_compatible",
+    "get_rng_state",
+    "load_actor",
+    "load_checkpoint",
+    "save_checkpoint",
+    "set_rng_state",
+]
+
+# Config fields that change the network or its data; a checkpoint only fits a config that agrees on all.
+_IDENTITY_FIELDS = (
+    "task.env_id",
+    "task.obs_mode",
+    "task.control_mode",
+    "policy.loss",
+    "policy.obs_horizon",
+    "policy.pred_horizon",
+    "policy.action_steps",
+    "policy.down_dims",
+    "policy.timestep_embed_dim",
+    "policy.kernel_size",
+    "policy.n_groups",
+)
+
+
+class CheckpointMismatchError(ValueError):
+    """The checkpoint was made for another task or network than the one asked for."""
+
+
+def save_checkpoint(path: str | Path, state: Mapping[str, Any]) -> Path:
+    """Write ``state`` to ``path`` atomically: a temporary file in the same folder, fsync, rename.
+
+    A kill at any moment leaves either the previous file or the new one, never a torn one.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save(dict(state), f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)  # make the rename itself durable
+    finally:
+        os.close(dir_fd)
+    return path
+
+
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Load with ``weights_only=True``: tensors and builtins only, never arbitrary code."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "latest.pt"
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {str(path)!r} does not exist")
+    try:
+        state = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as err:  # torn or foreign file: say which file
+        raise ValueError(f"checkpoint {str(path)!r} cannot be read safely: {err}") from err
+    for key in ("model", "config"):
+        if key not in state:
+            raise ValueError(f"checkpoint {str(path)!r} has no {key!r} entry; is it an l1flow-rl checkpoint?")
+    return state
+
+
+def _select(cfg: Mapping[str, Any], dotted: str) -> Any:
+    node: Any = cfg
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return None
+        node = node[part]
+    return node
+
+
+def check_compatible(saved_cfg: Mapping[str, Any], cfg: DictConfig | Mapping[str, Any], path: str = "") -> None:
+    """Raise :class:`CheckpointMismatchError` listing every identity field that differs."""
+    current = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+    diffs = [
+        f"{f}: checkpoint has {_select(saved_cfg, f)!r}, config asks for {_select(current, f)!r}"
+        for f in _IDENTITY_FIELDS
+        if _select(saved_cfg, f) != _select(current, f)
+    ]
+    if diffs:
+        raise CheckpointMismatchError(f"checkpoint {path!r} does not fit this config:\n  " + "\n  ".join(diffs))
+
+
+def load_actor(
+    path: str | Path, *, use_ema: bool = True, map_location: str | torch.device = "cpu"
+) -> tuple[L1FlowActor, DictConfig]:
+    """Rebuild the actor a checkpoint was trained with (EMA weights by default) and its config."""
+    from l1flow_rl.workspace.build import build_actor
+
+    state = load_checkpoint(path, map_location)
+    cfg = OmegaConf.create(state["config"])
+    shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
+    actor = build_actor(cfg.policy, shapes, int(state["action_dim"]))
+    weights = state["ema"] if use_ema and state.get("ema") is not None else state["model"]
+    load_state_into(actor, weights, str(path))
+    return actor.to(map_location).eval(), cfg
+
+
+def load_state_into(actor: torch.nn.Module, weights: Mapping[str, torch.Tensor], path: str = "") -> None:
+    """``load_state_dict`` with a message that lists missing, unexpected and mis-shaped entries."""
+    own = actor.state_dict()
+    missing = sorted(set(own) - set(weights))
+    unexpected = sorted(set(weights) - set(own))
+    shapes = [
+        f"{k}: checkpoint {tuple(weights[k].shape)} vs model {tuple(own[k].shape)}"
+        for k in sorted(set(own) & set(weights))
+        if weights[k].shape != own[k].shape
+    ]
+    if missing or unexpected or shapes:
+        parts = []
+        if shapes:
+            parts.append("shape mismatches:\n    " + "\n    ".join(shapes[:10]))
+        if missing:
+            parts.append(f"missing from checkpoint: {missing[:10]}")
+        if unexpected:
+            parts.append(f"not in model: {unexpected[:10]}")
+        raise CheckpointMismatchError(f"checkpoint {path!r} does not fit the network:\n  " + "\n  ".join(parts))
+    actor.load_state_dict(weights)
+
+
+def get_rng_state() -> dict[str, Any]:
+    """Every RNG the training loop draws from, as tensors and builtins (safe for weights_only)."""
+    np_state = np.random.get_state()
+    state: dict[str, Any] = {
+        "torch": torch.get_rng_state(),
+        "numpy": {
+            "keys": torch.from_numpy(np_state[1].astype(np.int64)),
+            "pos": int(np_state[2]),
+            "has_gauss": int(np_state[3]),
+            "cached_gaussian": float(np_state[4]),
+        },
+        "python": [list(x) if isinstance(x, tuple) else x for x in random.getstate()],
+    }
+    if torch.cuda.is_available():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def set_rng_state(state: Mapping[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    n = state["numpy"]
+    np.random.set_state(("MT19937", n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
+    py = state["python"]
+    random.setstate((py[0], tuple(py[1]), py[2]))
+    if "cuda" in state and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(state["cuda"])
