@@ -14,6 +14,7 @@ from l1flow_rl.policy import STATE_KEY, ChunkPolicy
 
 __all__ = ["L1FlowActor"]
 
+
 class L1FlowActor(TensorDictModule):
     """Reads ``in_keys[0]`` (observation history [*B, To, ...]) and writes ``out_keys[0]`` (the
     executable window [*B, K, A]: steps [To-1, To-1+K) of the predicted horizon H).

@@ -46,7 +46,9 @@ class Normalizer(nn.Module):
         if mode not in _MODES:
             raise ValueError(f"normaliser mode for {name!r} must be one of {_MODES}, got {mode!r}")
         if tuple(data.shape[-len(self.shape) :]) != self.shape:
-            raise ValueError(f"normaliser for {name!r} expects trailing shape {self.shape}, got {tuple(data.shape)}")
+            raise ValueError(
+                f"normaliser for {name!r} expects trailing shape {self.shape}, got {tuple(data.shape)}"
+            )
         flat = data.reshape(-1, *self.shape).double()
         if flat.shape[0] == 0:
             raise ValueError(f"cannot fit the normaliser for {name!r} on zero samples")
@@ -108,7 +110,9 @@ class NormalizerDict(nn.ModuleDict):
 
     def fit(self, data: Mapping[str, Tensor] | TensorDict, mode: NormalizerMode = "limits") -> NormalizerDict:
         for key, norm in self.items():
-            if key not in data.keys():
-                raise KeyError(f"cannot fit the observation normaliser: entry {key!r} is missing from the data")
+            if key not in data:
+                raise KeyError(
+                    f"cannot fit the observation normaliser: entry {key!r} is missing from the data"
+                )
             norm.fit(data[key], mode, name=key)
         return self

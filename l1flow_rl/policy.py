@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 import torch
@@ -62,19 +63,22 @@ class ChunkPolicy(nn.Module):
                 f"net.global_cond_dim={net.global_cond_dim} must equal obs_horizon * encoder.feature_dim "
                 f"= {obs_horizon} * {encoder.feature_dim}"
             )
+        if pred_horizon % net.horizon_multiple:
+            raise ValueError(
+                f"pred_horizon={pred_horizon} must be divisible by {net.horizon_multiple} "
+                f"(2 ** (len(down_dims) - 1) for down_dims={net.down_dims})"
+            )
         if net.action_dim != action_dim:
             raise ValueError(f"net.action_dim={net.action_dim} differs from action_dim={action_dim}")
         if sampler.uses_timestep != bool(net.timestep_embed_dim):
             raise ValueError(
-                f"{sampler!r} {'needs' if sampler.uses_timestep else 'takes no'} timestep, but the network was "
-                f"built with timestep_embed_dim={net.timestep_embed_dim}"
+                f"{sampler!r} {'needs' if sampler.uses_timestep else 'takes no'} timestep, but the network "
+                f"was built with timestep_embed_dim={net.timestep_embed_dim}"
             )
         self.net, self.encoder, self.sampler = net, encoder, sampler
         self.action_dim, self.obs_horizon = action_dim, obs_horizon
         self.pred_horizon, self.action_steps = pred_horizon, action_steps
-        norm_shapes = (
-            {k: s for k, s in encoder.obs_shapes.items() if len(s) == 1} if normalize_obs else {}
-        )
+        norm_shapes = {k: s for k, s in encoder.obs_shapes.items() if len(s) == 1} if normalize_obs else {}
         self.obs_normalizer = NormalizerDict(norm_shapes)
         self.action_normalizer = Normalizer(action_dim)
 
@@ -91,7 +95,7 @@ class ChunkPolicy(nn.Module):
         elif isinstance(observation, TensorDictBase):
             entries = {}
             for k in self.encoder.obs_shapes:
-                if k not in observation.keys():
+                if k not in observation:
                     raise KeyError(
                         f"observation entry {(key, k)!r} is missing; the encoder expects "
                         f"{sorted(self.encoder.obs_shapes)}"
@@ -113,12 +117,19 @@ class ChunkPolicy(nn.Module):
             if batch is not None and b != batch:
                 raise ValueError(f"{name!r} has batch dims {b}, other observation entries have {batch}")
             batch = b
-            if v.is_floating_point() and not torch.isfinite(v).all():
-                raise ValueError(f"{name!r} contains NaN or Inf")
+            if v.is_floating_point():
+                if not torch.isfinite(v).all():
+                    raise ValueError(f"{name!r} contains NaN or Inf")
+                entries[k] = v.to(self.dtype)  # float64 data would otherwise clash with float32 weights
         assert batch is not None
-        n = int(torch.tensor(batch).prod()) if batch else 1
+        n = math.prod(batch)
         flat = {k: v.reshape(n, self.obs_horizon, *self.encoder.obs_shapes[k]) for k, v in entries.items()}
         return TensorDict(flat, batch_size=[n, self.obs_horizon])
+
+    @property
+    def dtype(self) -> torch.dtype:
+        """Floating dtype of the network; observations and actions are cast to it."""
+        return next(self.net.parameters()).dtype
 
     def encode(self, obs: TensorDictBase) -> Tensor:
         """Normalised global condition [N, To * F] from a flattened observation TensorDict."""
@@ -137,7 +148,7 @@ class ChunkPolicy(nn.Module):
         generator: torch.Generator | None = None,
     ) -> Tensor:
         """Full predicted chunk [*B, H, A] in environment units."""
-        batch = self._batch_dims(observation)
+        batch = self.batch_dims(observation)
         obs = self.as_obs_dict(observation)
         cond = self.encode(obs)  # once per chunk, shared by every network call
         n = cond.shape[0]
@@ -163,13 +174,14 @@ class ChunkPolicy(nn.Module):
             deterministic = interaction_type() in (InteractionType.DETERMINISTIC, InteractionType.MODE)
         return self.executable(self.sample_chunk(observation, deterministic=deterministic))
 
-    def _batch_dims(self, observation: Tensor | TensorDictBase) -> tuple[int, ...]:
+    def batch_dims(self, observation: Tensor | TensorDictBase) -> tuple[int, ...]:
+        """The leading batch dims [*B] of an observation [*B, To, ...]."""
         if isinstance(observation, Tensor):
             first = observation
             shape: tuple[int, ...] = self.encoder.obs_shapes.get(STATE_KEY, ())
         else:
             k = next(iter(self.encoder.obs_shapes))
-            if k not in observation.keys():
+            if k not in observation:
                 return ()  # as_obs_dict raises the informative error
             first, shape = observation.get(k), self.encoder.obs_shapes[k]
         return tuple(first.shape[: max(first.dim() - len(shape) - 1, 0)])

@@ -30,7 +30,9 @@ class DiffusionSchedule:
         elif beta_schedule == "linear":
             betas = torch.linspace(1e-4, 0.02, num_train_timesteps, dtype=torch.float64)
         else:
-            raise ValueError(f"unknown beta_schedule {beta_schedule!r}; expected 'squaredcos_cap_v2' or 'linear'")
+            raise ValueError(
+                f"unknown beta_schedule {beta_schedule!r}; expected 'squaredcos_cap_v2' or 'linear'"
+            )
         self.betas = betas.float()
         self.alphas_cumprod = torch.cumprod(1.0 - betas, dim=0).float()
 

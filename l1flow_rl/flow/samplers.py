@@ -65,7 +65,7 @@ def _full(x: Tensor, value: float) -> Tensor:
 
 
 class TwoStepSampler(ChunkSampler):
-    """L1 Flow inference, 2 NFE: one Euler step from t=0 to ``t_first``, then return f(x_{t_first}, t_first)."""
+    """L1 Flow inference, 2 NFE: one Euler step from t=0 to ``t_first``, then f(x_{t_first}, t_first)."""
 
     prediction = "sample"
 
@@ -224,7 +224,7 @@ _REGISTRY: dict[str, type[ChunkSampler]] = {
 
 
 def make_sampler(spec: str | ChunkSampler, **kwargs: float) -> ChunkSampler:
-    """Build a sampler by name (``two_step``, ``euler``, ``velocity_euler``, ``ddpm``, ``ddim``, ``direct``)."""
+    """Sampler by name: ``two_step``, ``euler``, ``velocity_euler``, ``ddpm``, ``ddim`` or ``direct``."""
     if isinstance(spec, ChunkSampler):
         return spec
     try:

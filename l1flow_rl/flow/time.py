@@ -18,20 +18,30 @@ def check_time(t: Tensor, name: str = "t") -> None:
         raise ValueError(f"flow time {name!r} contains NaN or Inf")
     lo, hi = float(t.min()), float(t.max())
     if lo < 0.0 or hi > 1.0:
-        raise ValueError(f"flow time {name!r} must lie in [0, 1] (t=0 is noise, t=1 is data); got [{lo}, {hi}]")
+        raise ValueError(
+            f"flow time {name!r} must lie in [0, 1] (t=0 is noise, t=1 is data); got [{lo}, {hi}]"
+        )
 
 
-def broadcast_time(t: Tensor, like: Tensor) -> Tensor:
-    """Reshape a per-sample time ``[B]`` so it broadcasts against ``like`` ``[B, ...]``."""
+def broadcast_time(t: Tensor, like: Tensor, name: str = "t") -> Tensor:
+    """Reshape a per-sample time ``[B]`` (or a scalar ``[]``) to broadcast against ``like`` ``[B, ...]``."""
     if t.dim() == 0:
         return t
-    if t.shape[0] != like.shape[0]:
-        raise ValueError(f"flow time has batch {tuple(t.shape)}, expected its first dim to be {like.shape[0]}")
+    if like.dim() == 0 or tuple(t.shape) != (like.shape[0],):
+        batch = like.shape[0] if like.dim() else "B"
+        raise ValueError(f"flow time {name!r} must have shape [] or [{batch}], got {tuple(t.shape)}")
     return t.reshape(t.shape[0], *([1] * (like.dim() - 1)))
 
 
 def interpolate(x0: Tensor, x1: Tensor, t: Tensor) -> Tensor:
-    """The straight path ``x_t = (1 - t) x0 + t x1`` (t has shape [] or [B])."""
+    """The straight path ``x_t = (1 - t) x0 + t x1`` (t has shape [] or [B]).
+
+    Examples:
+        >>> interpolate(torch.zeros(2, 3), torch.ones(2, 3), torch.tensor([0.25, 1.0]))[:, 0]
+        tensor([0.2500, 1.0000])
+    """
+    if x0.shape != x1.shape:
+        raise ValueError(f"noise 'x0' must have the shape of 'x1' {tuple(x1.shape)}, got {tuple(x0.shape)}")
     check_time(t)
     tt = broadcast_time(t, x1)
     return (1.0 - tt) * x0 + tt * x1

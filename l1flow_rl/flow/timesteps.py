@@ -90,5 +90,7 @@ def make_timesteps(spec: str | TimestepDistribution, **kwargs: float) -> Timeste
     try:
         cls = _REGISTRY[spec]
     except KeyError:
-        raise ValueError(f"unknown timestep distribution {spec!r}; expected one of {sorted(_REGISTRY)}") from None
+        raise ValueError(
+            f"unknown timestep distribution {spec!r}; expected one of {sorted(_REGISTRY)}"
+        ) from None
     return cls(**kwargs)

@@ -8,6 +8,7 @@ timestep goes through a sinusoidal embedding and an MLP and is concatenated with
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 
@@ -105,18 +106,19 @@ class ConditionalUnet1D(nn.Module):
 
         widths = (action_dim, *down_dims)
         self.down = nn.ModuleList()
-        for i, (c_in, c_out) in enumerate(zip(widths[:-1], widths[1:])):
+        for i, (c_in, c_out) in enumerate(itertools.pairwise(widths)):
             last = i == len(down_dims) - 1
             sample = nn.Identity() if last else nn.Conv1d(c_out, c_out, 3, stride=2, padding=1)
             self.down.append(nn.ModuleList([res(c_in, c_out), res(c_out, c_out), sample]))
         self.mid = nn.ModuleList([res(down_dims[-1], down_dims[-1]), res(down_dims[-1], down_dims[-1])])
         self.up = nn.ModuleList()
         # As in Diffusion Policy, every up level upsamples and the finest down level's skip is unused.
-        for c_in, c_out in reversed(list(zip(widths[1:-1], widths[2:]))):
+        for c_in, c_out in reversed(list(itertools.pairwise(down_dims))):
             sample = nn.ConvTranspose1d(c_in, c_in, 4, stride=2, padding=1)
             self.up.append(nn.ModuleList([res(2 * c_out, c_in), res(c_in, c_in), sample]))
         self.head = nn.Sequential(
-            _ConvBlock(down_dims[0], down_dims[0], kernel_size, n_groups), nn.Conv1d(down_dims[0], action_dim, 1)
+            _ConvBlock(down_dims[0], down_dims[0], kernel_size, n_groups),
+            nn.Conv1d(down_dims[0], action_dim, 1),
         )
         self.horizon_multiple = 2 ** (len(down_dims) - 1)
 
@@ -126,7 +128,8 @@ class ConditionalUnet1D(nn.Module):
             raise ValueError(f"UNet input must be [B, H, {self.action_dim}], got {tuple(x.shape)}")
         if x.shape[1] % self.horizon_multiple:
             raise ValueError(
-                f"chunk length {x.shape[1]} must be divisible by {self.horizon_multiple} for down_dims={self.down_dims}"
+                f"chunk length {x.shape[1]} must be divisible by {self.horizon_multiple} "
+                f"for down_dims={self.down_dims}"
             )
         feats = []
         if self.time_mlp is not None:
@@ -134,7 +137,9 @@ class ConditionalUnet1D(nn.Module):
                 raise ValueError("this UNet was built with a timestep embedding; pass t")
             feats.append(self.time_mlp(t.expand(x.shape[0]) if t.dim() == 0 else t))
         elif t is not None:
-            raise ValueError("this UNet was built without a timestep embedding (timestep_embed_dim=0); pass t=None")
+            raise ValueError(
+                "this UNet was built without a timestep embedding (timestep_embed_dim=0); pass t=None"
+            )
         if self.global_cond_dim:
             if global_cond is None or global_cond.shape != (x.shape[0], self.global_cond_dim):
                 got = None if global_cond is None else tuple(global_cond.shape)

@@ -51,7 +51,9 @@ class ChunkLossBase(LossModule):
     prediction: str = ""
     sampler_hint: str = ""
 
-    def __init__(self, actor_network: TensorDictModule, *, reduction: str = "mean", mask_padding: bool = True):
+    def __init__(
+        self, actor_network: TensorDictModule, *, reduction: str = "mean", mask_padding: bool = True
+    ):
         if reduction not in ("mean", "sum", "none"):
             raise ValueError(f"reduction must be 'mean', 'sum' or 'none', got {reduction!r}")
         self._in_keys = None
@@ -74,7 +76,9 @@ class ChunkLossBase(LossModule):
         self.mask_padding = mask_padding
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass  # no value estimator: a behaviour-cloning loss
+        # No value estimator (a behaviour-cloning loss); set_keys lands here, so drop cached key lists.
+        self._in_keys = None
+        self._out_keys = None
 
     @property
     def in_keys(self) -> list[NestedKey]:
@@ -127,13 +131,17 @@ class ChunkLossBase(LossModule):
             bad = (~torch.isfinite(action)).reshape(-1, H * A).any(-1).nonzero()[:5, 0].tolist()
             raise ValueError(f"{keys.action_chunk!r} contains NaN or Inf (flat batch rows {bad})")
         batch = action.shape[:-2]
-        observation = self._get(td, keys.observation, f"the observation history, [*B, {policy.obs_horizon}, ...]")
+        observation = self._get(
+            td, keys.observation, f"the observation history, [*B, {policy.obs_horizon}, ...]"
+        )
         obs = policy.as_obs_dict(observation, key=str(keys.observation))
-        n = action[..., 0, 0].numel()
-        if obs.shape[0] != n:
+        obs_batch = policy.batch_dims(observation)
+        if tuple(obs_batch) != tuple(batch):
             raise ValueError(
-                f"{keys.observation!r} holds {obs.shape[0]} samples but {keys.action_chunk!r} holds {n}"
+                f"{keys.observation!r} has batch dims {list(obs_batch)} but {keys.action_chunk!r} has "
+                f"{list(batch)}; expected [*B, {policy.obs_horizon}, ...] and [*B, {H}, {A}] with the same *B"
             )
+        n = obs.shape[0]
         valid = None
         if self.mask_padding:
             is_pad = td.get(keys.action_is_pad, default=None)
@@ -143,19 +151,32 @@ class ChunkLossBase(LossModule):
                         f"{keys.action_is_pad!r} must have shape {[*batch, H]}, got {tuple(is_pad.shape)}"
                     )
                 valid = ~is_pad.reshape(n, H).bool()
-        x1 = policy.action_normalizer.normalize(action.reshape(n, H, A))
+        x1 = policy.action_normalizer.normalize(action.reshape(n, H, A).to(policy.dtype))
         return obs, x1, valid, batch
 
     # -- the loss ------------------------------------------------------------------------------
     @abc.abstractmethod
-    def _elementwise_loss(self, cond: Tensor, x1: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
-        """Element-wise loss [N, H, A] for normalised chunks ``x1`` and diagnostics."""
+    def _elementwise_loss(
+        self, cond: Tensor, x1: Tensor, valid: Tensor | None
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """Element-wise loss [N, H, A] for normalised chunks ``x1`` and diagnostics.
+
+        ``valid`` ([N, H] bool or None) is only for diagnostics; :meth:`forward` masks the loss.
+        """
+
+    @staticmethod
+    def _valid_mean(value: Tensor, valid: Tensor | None) -> Tensor:
+        """Mean of ``value`` [N, H, A] over the valid chunk steps (all steps when ``valid`` is None)."""
+        if valid is None:
+            return value.mean()
+        mask = valid.unsqueeze(-1).expand_as(value)
+        return torch.where(mask, value, torch.zeros_like(value)).sum() / mask.sum().clamp_min(1)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         obs, x1, valid, batch = self._read_batch(tensordict)
         with self.actor_network_params.to_module(self.actor_network):
             cond = self.policy.encode(obs)
-            err, diagnostics = self._elementwise_loss(cond, x1)
+            err, diagnostics = self._elementwise_loss(cond, x1, valid)
         mask = None if valid is None else valid.unsqueeze(-1).expand_as(err)
         if self.reduction == "none":
             loss = err if mask is None else torch.where(mask, err, torch.zeros_like(err))

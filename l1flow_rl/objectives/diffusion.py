@@ -33,11 +33,15 @@ class DiffusionLoss(ChunkLossBase):
     sampler_hint = "L1FlowActor.for_state(..., sampler=DDPMSampler()) or sampler=DDIMSampler(16)"
     diagnostic_keys = ()
 
-    def __init__(self, actor_network: TensorDictModule, *, reduction: str = "mean", mask_padding: bool = True):
+    def __init__(
+        self, actor_network: TensorDictModule, *, reduction: str = "mean", mask_padding: bool = True
+    ):
         super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
         self.schedule = self.policy.sampler.schedule  # type: ignore[attr-defined]
 
-    def _elementwise_loss(self, cond: Tensor, x1: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+    def _elementwise_loss(
+        self, cond: Tensor, x1: Tensor, valid: Tensor | None
+    ) -> tuple[Tensor, dict[str, Tensor]]:
         steps = torch.randint(0, self.schedule.num_train_timesteps, (x1.shape[0],), device=x1.device)
         noise = torch.randn_like(x1)
         eps_hat = self.policy.denoise(self.schedule.add_noise(x1, noise, steps), steps.to(x1.dtype), cond)

@@ -49,7 +49,9 @@ class FlowMatchingLoss(ChunkLossBase):
         super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
         self.timesteps = make_timesteps(timesteps)
 
-    def _elementwise_loss(self, cond: Tensor, x1: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+    def _elementwise_loss(
+        self, cond: Tensor, x1: Tensor, valid: Tensor | None
+    ) -> tuple[Tensor, dict[str, Tensor]]:
         t = self.timesteps.sample(x1.shape[0], device=x1.device).to(x1.dtype)
         x0 = torch.randn_like(x1)
         v_hat = self.policy.denoise(interpolate(x0, x1, t), t, cond)

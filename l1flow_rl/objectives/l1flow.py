@@ -73,10 +73,12 @@ class L1FlowLoss(ChunkLossBase):
         if t_first is not None:
             self.policy.sampler = TwoStepSampler(t_first)
 
-    def _elementwise_loss(self, cond: Tensor, x1: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+    def _elementwise_loss(
+        self, cond: Tensor, x1: Tensor, valid: Tensor | None
+    ) -> tuple[Tensor, dict[str, Tensor]]:
         t = self.timesteps.sample(x1.shape[0], device=x1.device).to(x1.dtype)
         x0 = torch.randn_like(x1)
         x_t = interpolate(x0, x1, t)
         x1_hat = self.policy.denoise(x_t, t, cond)
         err = sample_prediction_error(x1_hat, x1, t, self.loss_type, self.loss_space)
-        return err, {"t_mean": t.mean(), "x_error_l1": (x1_hat - x1).abs().mean()}
+        return err, {"t_mean": t.mean(), "x_error_l1": self._valid_mean((x1_hat - x1).abs(), valid)}

@@ -23,7 +23,8 @@ class RegressionLoss(ChunkLossBase):
         >>> from tensordict import TensorDict
         >>> from l1flow_rl import L1FlowActor, RegressionLoss
         >>> from l1flow_rl.flow import DirectSampler
-        >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64), sampler=DirectSampler())
+        >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64),
+        ...                               sampler=DirectSampler())
         >>> td = TensorDict({"observation": torch.randn(4, 2, 5),
         ...                  "action_chunk": torch.rand(4, 16, 2) * 2 - 1}, batch_size=[4])
         >>> RegressionLoss(actor)(td)["loss_regression"].backward()
@@ -47,6 +48,8 @@ class RegressionLoss(ChunkLossBase):
             raise ValueError(f"loss_type must be 'l1' or 'mse', got {loss_type!r}")
         self.loss_type = loss_type
 
-    def _elementwise_loss(self, cond: Tensor, x1: Tensor) -> tuple[Tensor, dict[str, Tensor]]:
+    def _elementwise_loss(
+        self, cond: Tensor, x1: Tensor, valid: Tensor | None
+    ) -> tuple[Tensor, dict[str, Tensor]]:
         diff = self.policy.denoise(torch.zeros_like(x1), None, cond) - x1
         return (diff.abs() if self.loss_type == "l1" else diff.square()), {}
