@@ -1,0 +1,288 @@
+"""``l1flow-rl train``: demonstrations -> chunk replay buffer -> loss -> AdamW/cosine/EMA -> evaluation.
+
+A plain TorchRL loop. Rank 0 owns demonstrations, evaluation, checkpoints and logs; under
+``torchrun`` every rank trains on its own sample stream and DDP keeps the replicas in sync.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from omegaconf import DictConfig, OmegaConf
+
+from l1flow_rl.workspace.build import build_actor, build_loss
+from l1flow_rl.workspace.checkpoint import (
+    check_compatible,
+    get_rng_state,
+    load_checkpoint,
+    save_checkpoint,
+    set_rng_state,
+)
+from l1flow_rl.workspace.report import format_summary, save_plots
+from l1flow_rl.workspace.trainer import Trainer
+
+__all__ = ["resolve_device", "run_train"]
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"device={name!r} but CUDA is not available on this machine; use device=cpu")
+    return torch.device(name)
+
+
+def _seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _init_distributed() -> tuple[int, int]:
+    """(rank, world_size); initialises the process group when launched by torchrun."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world > 1 and not dist.is_initialized():
+        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    return (dist.get_rank(), world) if world > 1 else (0, 1)
+
+
+def _obs_shapes(episodes) -> dict[str, tuple[int, ...]]:
+    obs = episodes["observation"]
+    if isinstance(obs, torch.Tensor):
+        return {"state": tuple(obs.shape[1:])}
+    return {k: tuple(v.shape[1:]) for k, v in obs.items()}
+
+
+class _Evaluator:
+    """Creates the evaluation env once and reuses it; evaluation never touches the training RNG."""
+
+    def __init__(self, cfg: DictConfig, device: torch.device) -> None:
+        self.cfg, self.device, self.env = cfg, device, None
+
+    def __call__(self, actor, step: int, video_dir: Path | None = None) -> dict[str, Any]:
+        from l1flow_rl.envs import make_env
+        from l1flow_rl.evaluation import evaluate
+
+        if self.env is None:
+            task = OmegaConf.to_object(self.cfg.task)
+            self.env = make_env(
+                task, num_envs=self.cfg.eval.num_envs, device=str(self.device), obs_horizon=self.cfg.policy.obs_horizon
+            )
+        with torch.random.fork_rng(devices=[]), torch.no_grad():
+            metrics = evaluate(
+                actor,
+                self.env,
+                episodes=self.cfg.eval.episodes,
+                seed=self.cfg.eval.seed,
+                deterministic=self.cfg.eval.deterministic,
+                video_dir=video_dir,
+                video_episodes=self.cfg.eval.video_episodes if video_dir is not None else 0,
+            )
+        metrics["step"] = step
+        return metrics
+
+    def close(self) -> None:
+        if self.env is not None and not self.env.is_closed:
+            self.env.close()
+
+
+def run_train(cfg: DictConfig) -> int:
+    from l1flow_rl.data import ensure_demos, fit_normalizers, load_episodes, make_chunk_buffer
+
+    rank, world = _init_distributed()
+    device = resolve_device(cfg.device)
+    if device.type == "cuda" and world > 1:
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
+        torch.cuda.set_device(device)
+    _seed_everything(cfg.seed + rank)
+    run_dir, tcfg = Path(cfg.run_dir), cfg.train
+    ckpt_dir = run_dir / "checkpoints"
+    latest = ckpt_dir / "latest.pt"
+    resume_state = None
+    if cfg.resume:
+        if not latest.is_file():
+            raise FileNotFoundError(f"resume=true but {str(latest)!r} does not exist; drop resume=true to start fresh")
+        resume_state = load_checkpoint(latest)
+        check_compatible(resume_state["config"], cfg, str(latest))
+    elif latest.is_file() and rank == 0:
+        raise FileExistsError(
+            f"{str(run_dir)!r} already holds a run ({latest}); pass resume=true to continue it or choose another run_dir"
+        )
+
+    # -- data --------------------------------------------------------------------------------
+    t_start = time.perf_counter()
+    if rank == 0:
+        dataset = ensure_demos(
+            OmegaConf.to_object(cfg.task),
+            cfg.demos.num,
+            cfg.data_dir,
+            seed=cfg.demos.seed,
+            max_consecutive_failures=cfg.demos.max_consecutive_failures,
+        )
+        paths = [str(dataset)]
+    else:
+        paths = [""]
+    if world > 1:
+        dist.broadcast_object_list(paths, src=0)
+    dataset = Path(paths[0])
+    demo_seconds = time.perf_counter() - t_start
+    episodes = load_episodes(dataset)
+    pcfg = cfg.policy
+    buffer = make_chunk_buffer(
+        episodes,
+        obs_horizon=pcfg.obs_horizon,
+        pred_horizon=pcfg.pred_horizon,
+        batch_size=tcfg.batch_size,
+        seed=cfg.seed + rank,
+        action_pad="delta" if cfg.task.delta_control else "repeat",
+        prefetch=tcfg.prefetch or None,
+    )
+
+    # -- model -------------------------------------------------------------------------------
+    action_dim = int(episodes["action"].shape[-1])
+    obs_shapes = _obs_shapes(episodes)
+    actor = build_actor(pcfg, obs_shapes, action_dim)
+    fit_normalizers(actor.policy, episodes, mode=pcfg.normalizer)
+    actor.to(device)
+    loss_fn = build_loss(actor, pcfg)
+    trainer = Trainer(
+        actor,
+        loss_fn,
+        total_steps=tcfg.steps,
+        lr=tcfg.lr,
+        betas=tuple(tcfg.betas),
+        weight_decay=tcfg.weight_decay,
+        warmup_steps=tcfg.warmup_steps,
+        ema_power=tcfg.ema_power,
+        grad_clip=tcfg.grad_clip,
+        amp=tcfg.amp,
+        compile=tcfg.compile,
+    )
+    history: dict[str, list[float]] = {"step": [], "loss": [], "lr": []}
+    evals: list[dict[str, Any]] = []
+    best = -1.0
+    logger_state = None
+    if resume_state is not None:
+        trainer.load_state_dict(resume_state)
+        set_rng_state(resume_state["rng"])
+        buffer.sampler.load_state_dict(resume_state["sampler"])
+        history, evals, best = resume_state["history"], resume_state["evals"], resume_state["best"]
+        logger_state = resume_state.get("logger")
+
+    is_main = rank == 0
+    logger = None
+    if is_main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        OmegaConf.save(cfg, run_dir / "config.yaml")
+        logger = _make_logger(tcfg.logger, run_dir, logger_state)
+    evaluator = _Evaluator(cfg, device) if is_main and cfg.eval.episodes > 0 else None
+
+    def checkpoint_state() -> dict[str, Any]:
+        state = trainer.state_dict()
+        state.update(
+            config=OmegaConf.to_container(cfg, resolve=True),
+            obs_shapes={k: list(v) for k, v in obs_shapes.items()},
+            action_dim=action_dim,
+            dataset=str(dataset),
+            rng=get_rng_state(),
+            sampler=buffer.sampler.state_dict(),
+            history=history,
+            evals=evals,
+            best=best,
+            logger=logger.state_dict() if logger is not None and hasattr(logger, "state_dict") else None,
+        )
+        return state
+
+    # -- loop --------------------------------------------------------------------------------
+    from tqdm import tqdm
+
+    t_train = time.perf_counter()
+    first_step = trainer.step
+    bar = tqdm(total=tcfg.steps, initial=first_step, disable=not is_main, desc="train", dynamic_ncols=True)
+    try:
+        while trainer.step < tcfg.steps:
+            batch = buffer.sample().to(device)
+            metrics = trainer.train_step(batch)
+            step = trainer.step
+            bar.update(1)
+            if is_main and (step % tcfg.log_every == 0 or step == tcfg.steps):
+                rate = (step - first_step) / max(time.perf_counter() - t_train, 1e-9)
+                bar.set_postfix(loss=f"{metrics['loss']:.4f}", lr=f"{metrics['lr']:.2e}", it_s=f"{rate:.1f}")
+                history["step"].append(step)
+                history["loss"].append(metrics["loss"])
+                history["lr"].append(metrics["lr"])
+                for k, v in metrics.items():
+                    logger.log_scalar(f"train/{k}", v, step=step)
+            if not is_main:
+                continue
+            if evaluator is not None and tcfg.eval_every and step % tcfg.eval_every == 0 and step < tcfg.steps:
+                result = evaluator(trainer.ema_actor, step)
+                evals.append(_headline(result))
+                logger.log_scalar("eval/success_once", result["success_once"], step=step)
+                bar.write(f"step {step}: success_once={result['success_once']:.3f} over {result['episodes']} episodes")
+                if result["success_once"] > best:
+                    best = result["success_once"]
+                    save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())
+            if step % tcfg.checkpoint_every == 0 or step == tcfg.steps:
+                save_checkpoint(latest, checkpoint_state())
+    finally:
+        bar.close()
+    train_seconds = time.perf_counter() - t_train
+
+    if not is_main:
+        dist.barrier()
+        return 0
+    # -- final evaluation and report ------------------------------------------------------
+    summary: dict[str, Any] = {
+        "task": cfg.task.name,
+        "policy": cfg.policy.name,
+        "steps": trainer.step,
+        "demos": cfg.demos.num,
+        "demo_seconds": round(demo_seconds, 1),
+        "train_seconds": round(train_seconds, 1),
+    }
+    if evaluator is not None:
+        result = evaluator(trainer.ema_actor, trainer.step, video_dir=run_dir / "videos")
+        evaluator.close()
+        evals.append(_headline(result))
+        logger.log_scalar("eval/success_once", result["success_once"], step=trainer.step)
+        if result["success_once"] > best or not (ckpt_dir / "best.pt").is_file():
+            best = max(best, result["success_once"])
+            save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())
+        save_checkpoint(latest, checkpoint_state())
+        (run_dir / "eval.json").write_text(json.dumps({**result, "step": trainer.step}, indent=2))
+        summary.update(
+            success_once=result["success_once"],
+            success_at_end=result["success_at_end"],
+            eval_episodes=result["episodes"],
+            chunk_latency_ms_median=result.get("latency_ms_median"),
+        )
+    summary["wall_seconds"] = round(time.perf_counter() - t_start, 1)
+    save_plots(history, evals, run_dir)
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    print(format_summary(summary))
+    print(f"run directory: {run_dir}")
+    if world > 1:
+        dist.barrier()
+    return 0
+
+
+def _headline(result: dict[str, Any]) -> dict[str, Any]:
+    keys = ("step", "success_once", "success_at_end", "return", "episode_length", "episodes")
+    return {k: result[k] for k in keys if k in result}
+
+
+def _make_logger(kind: str, run_dir: Path, state: dict | None):
+    from torchrl.record.loggers import get_logger
+
+    if kind not in ("csv", "tensorboard", "wandb"):
+        raise ValueError(f"train.logger={kind!r}; expected csv, tensorboard or wandb")
+    return get_logger(kind, logger_name=str(run_dir / "logs"), experiment_name="train", state_dict=state)

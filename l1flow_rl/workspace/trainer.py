@@ -1,0 +1,131 @@
+"""One optimisation step, as Diffusion Policy trains: AdamW, warm-up + cosine LR, EMA, optional
+gradient clipping, AMP and torch.compile, and DDP when launched under ``torchrun``."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from typing import Any
+
+import torch
+import torch.distributed as dist
+from tensordict import TensorDictBase
+from torch import Tensor, nn
+from torch.nn.parallel import DistributedDataParallel
+from torchrl.objectives import LossModule
+
+from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.ema import make_ema
+
+__all__ = ["Trainer", "warmup_cosine"]
+
+
+def warmup_cosine(warmup_steps: int, total_steps: int):
+    """LR multiplier: linear from 0 over ``warmup_steps``, then a half cosine to 0 at ``total_steps``."""
+
+    def factor(step: int) -> float:
+        if step < warmup_steps:
+            return step / max(1, warmup_steps)
+        progress = (step - warmup_steps) / max(1, total_steps - warmup_steps)
+        return 0.5 * (1.0 + math.cos(math.pi * min(progress, 1.0)))
+
+    return factor
+
+
+class _SummedLoss(nn.Module):
+    """Sum of a loss module's ``loss_*`` entries plus its detached diagnostics.
+
+    DDP needs a module whose forward returns the tensors backward starts from; it cannot look
+    inside a TensorDict, so this returns (scalar, dict).
+    """
+
+    def __init__(self, loss_fn: LossModule) -> None:
+        super().__init__()
+        self.loss_fn = loss_fn
+
+    def forward(self, batch: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
+        out = self.loss_fn(batch)
+        loss = sum(v for k, v in out.items() if k.startswith("loss_"))
+        return loss, {k: v for k, v in out.items() if not k.startswith("loss_")}
+
+
+class Trainer:
+    """Owns the optimiser, scheduler and EMA for one actor and its loss.
+
+    Args:
+        actor: the trained actor; its normalisers must already be fitted (the EMA copies them).
+        loss_fn: a loss built on ``actor``.
+        total_steps: length of the cosine schedule.
+    """
+
+    def __init__(
+        self,
+        actor: L1FlowActor,
+        loss_fn: LossModule,
+        *,
+        total_steps: int,
+        lr: float = 1e-4,
+        betas: tuple[float, float] = (0.95, 0.999),
+        weight_decay: float = 1e-6,
+        warmup_steps: int = 500,
+        ema_power: float = 0.75,
+        grad_clip: float = 0.0,
+        amp: bool = False,
+        compile: bool = False,
+    ) -> None:
+        self.actor, self.loss_fn = actor, loss_fn
+        self.grad_clip, self.amp = grad_clip, amp
+        if compile:
+            actor.policy.net.compile()  # in place: the state_dict keys stay the same
+        params = [p for p in actor.parameters() if p.requires_grad]
+        self.optimizer = torch.optim.AdamW(params, lr=lr, betas=tuple(betas), weight_decay=weight_decay)
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, warmup_cosine(warmup_steps, total_steps))
+        self.ema = make_ema(actor, power=ema_power)
+        self.step = 0
+        summed = _SummedLoss(loss_fn)
+        self.distributed = dist.is_available() and dist.is_initialized()
+        self._forward: nn.Module = DistributedDataParallel(summed) if self.distributed else summed
+
+    @property
+    def ema_actor(self) -> L1FlowActor:
+        return self.ema.module  # type: ignore[return-value]
+
+    def train_step(self, batch: TensorDictBase) -> dict[str, float]:
+        device_type = next(self.actor.parameters()).device.type
+        autocast = (
+            torch.autocast(device_type, dtype=torch.bfloat16) if self.amp else contextlib.nullcontext()
+        )
+        with autocast:
+            loss, diagnostics = self._forward(batch)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(
+            self.actor.parameters(), self.grad_clip if self.grad_clip > 0 else float("inf")
+        )
+        self.optimizer.step()
+        self.scheduler.step()
+        self.ema.update_parameters(self.actor)
+        self.step += 1
+        metrics = {"loss": float(loss.detach()), "lr": self.scheduler.get_last_lr()[0], "grad_norm": float(grad_norm)}
+        metrics.update({k: float(v) for k, v in diagnostics.items() if v.numel() == 1})
+        return metrics
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "model": self.actor.state_dict(),
+            "ema": self.ema_actor.state_dict(),
+            "ema_n_averaged": self.ema.n_averaged.clone(),
+            "optimizer": self.optimizer.state_dict(),
+            "scheduler": self.scheduler.state_dict(),
+            "step": self.step,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        from l1flow_rl.workspace.checkpoint import load_state_into
+
+        load_state_into(self.actor, state["model"])
+        load_state_into(self.ema_actor, state["ema"])
+        self.ema.n_averaged.copy_(state["ema_n_averaged"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.scheduler.load_state_dict(state["scheduler"])
+        self.step = int(state["step"])

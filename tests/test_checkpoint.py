@@ -1,0 +1,105 @@
+"""Checkpoints: atomic writes survive a kill, loads are weights_only, mismatches are explained."""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import pytest
+import torch
+
+from l1flow_rl import L1FlowActor
+from l1flow_rl.workspace.checkpoint import (
+    CheckpointMismatchError,
+    check_compatible,
+    load_checkpoint,
+    load_state_into,
+    save_checkpoint,
+)
+
+
+def _state(value: float) -> dict:
+    return {"model": {"w": torch.full((3,), value)}, "config": {"task": {"env_id": "PushCube-v1"}}, "step": int(value)}
+
+
+def test_round_trip_is_readable_with_weights_only(tmp_path):
+    path = save_checkpoint(tmp_path / "ck" / "latest.pt", _state(2.0))
+    raw = torch.load(path, weights_only=True)  # what any user can do safely
+    assert torch.equal(raw["model"]["w"], torch.full((3,), 2.0))
+    assert load_checkpoint(tmp_path / "ck")["step"] == 2  # a folder means its latest.pt
+    assert [p.name for p in path.parent.iterdir()] == ["latest.pt"]  # no temp files left
+
+
+class _Payload:
+    def __reduce__(self):
+        return (os.system, ("echo pwned",))
+
+
+def test_arbitrary_pickles_are_refused(tmp_path):
+    path = tmp_path / "evil.pt"
+    with open(path, "wb") as f:
+        pickle.dump({"model": _Payload(), "config": {}}, f)
+    with pytest.raises(ValueError, match="cannot be read safely"):
+        load_checkpoint(path)
+
+
+def test_missing_and_foreign_files_are_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nothere.pt"):
+        load_checkpoint(tmp_path / "nothere.pt")
+    torch.save({"weights": torch.zeros(1)}, tmp_path / "foreign.pt")
+    with pytest.raises(ValueError, match="no 'model' entry"):
+        load_checkpoint(tmp_path / "foreign.pt")
+    (tmp_path / "torn.pt").write_bytes(b"PK\x03\x04 not really a zip")
+    with pytest.raises(ValueError, match="torn.pt"):
+        load_checkpoint(tmp_path / "torn.pt")
+
+
+def test_kill_during_write_keeps_the_previous_checkpoint(tmp_path):
+    path = tmp_path / "latest.pt"
+    save_checkpoint(path, _state(1.0))
+    # A second process writes a large checkpoint to the same path; kill it mid-write.
+    script = textwrap.dedent(
+        f"""
+        import torch
+        from l1flow_rl.workspace.checkpoint import save_checkpoint
+        big = {{"model": {{"w": torch.zeros(200_000_000)}}, "config": {{}}, "step": 2}}
+        save_checkpoint({str(path)!r}, big)
+        """
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script])
+    deadline = time.time() + 60
+    while time.time() < deadline and not any(p.name.endswith(".tmp") for p in tmp_path.iterdir()):
+        time.sleep(0.01)
+    assert any(p.name.endswith(".tmp") for p in tmp_path.iterdir()), "the writer never started its temp file"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    state = load_checkpoint(path)
+    assert state["step"] == 1
+    assert torch.equal(state["model"]["w"], torch.full((3,), 1.0))
+
+
+def test_config_mismatch_lists_every_difference():
+    saved = {"task": {"env_id": "PushCube-v1", "obs_mode": "state"}, "policy": {"down_dims": [64, 128, 256]}}
+    asked = {"task": {"env_id": "PickCube-v1", "obs_mode": "state"}, "policy": {"down_dims": [32, 64]}}
+    with pytest.raises(CheckpointMismatchError) as info:
+        check_compatible(saved, asked, "runs/x/latest.pt")
+    msg = str(info.value)
+    assert "task.env_id: checkpoint has 'PushCube-v1', config asks for 'PickCube-v1'" in msg
+    assert "policy.down_dims" in msg
+    assert "task.obs_mode" not in msg
+
+
+def test_loading_weights_into_another_network_says_what_differs():
+    small = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
+    other = L1FlowActor.for_state(obs_dim=7, action_dim=2, down_dims=(16, 32))
+    with pytest.raises(CheckpointMismatchError, match=r"shape mismatches") as info:
+        load_state_into(other, small.state_dict(), "ck.pt")
+    assert "obs_normalizer" in str(info.value) or "film" in str(info.value)
+    deeper = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32, 64))
+    with pytest.raises(CheckpointMismatchError, match="not in model|missing from checkpoint"):
+        load_state_into(small, deeper.state_dict())
