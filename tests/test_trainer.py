@@ -25,9 +25,13 @@ def _batch(n: int, seed: int) -> TensorDict:
     return TensorDict({"observation": obs, "action_chunk": act}, batch_size=[n])
 
 
-def _trainer(steps: int = 60, **kw) -> Trainer:
-    actor = L1FlowActor.for_state(obs_dim=3, action_dim=2, obs_horizon=2, pred_horizon=8, action_steps=4,
-                                  down_dims=(16, 32), timestep_embed_dim=16)
+def _actor() -> L1FlowActor:
+    return L1FlowActor.for_state(obs_dim=3, action_dim=2, obs_horizon=2, pred_horizon=8, action_steps=4,
+                                 down_dims=(16, 32), timestep_embed_dim=16)
+
+
+def _trainer(steps: int = 60, actor: L1FlowActor | None = None, **kw) -> Trainer:
+    actor = actor if actor is not None else _actor()
     return Trainer(actor, L1FlowLoss(actor), total_steps=steps, lr=3e-3, warmup_steps=5, **kw)
 
 
@@ -87,9 +91,10 @@ def _ddp_worker(rank: int, world: int, port: int, out: dict) -> None:
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
     dist.init_process_group("gloo", rank=rank, world_size=world)
     torch.manual_seed(100 + rank)  # different initial weights: DDP must broadcast rank 0's
-    trainer = _trainer()
+    actor = _actor()
+    initial = torch.nn.utils.parameters_to_vector(actor.parameters()).detach().clone()
+    trainer = _trainer(actor=actor)
     assert trainer.distributed
-    initial = torch.nn.utils.parameters_to_vector(trainer.actor.parameters()).detach().clone()
     for step in range(4):
         trainer.train_step(_batch(16, seed=10 * step + rank))  # each rank sees other data
     final = torch.nn.utils.parameters_to_vector(trainer.actor.parameters()).detach()
