@@ -1,0 +1,68 @@
+"""Time the README's main job end to end and check it against its targets.
+
+Runs ``l1flow-rl train`` (the embedded default: ManiSkill PushCube, state, 100 demonstrations,
+L1 Flow) in a fresh data and run directory, then reports wall time (demonstrations included) as a
+ratio of the 15-minute budget and success_once against the 0.9 target.
+
+    .venv/bin/python benchmarks/bench_main_job.py [--out benchmarks/results/main_job.json] [override ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+BUDGET_S = 15 * 60
+TARGET_SUCCESS = 0.9
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="benchmarks/results/main_job.json")
+    parser.add_argument("--workdir", default=None, help="where data/ and run/ go (default: a temp dir)")
+    parser.add_argument("overrides", nargs="*", help="extra hydra overrides (default: none, the main job)")
+    args = parser.parse_args()
+    work = Path(args.workdir or tempfile.mkdtemp(prefix="l1flow-main-job-"))
+    run_dir, data_dir = work / "run", work / "data"
+    cmd = [sys.executable, "-m", "l1flow_rl.cli", "train", f"data_dir={data_dir}", f"run_dir={run_dir}", *args.overrides]
+    print("running:", " ".join(cmd), flush=True)
+    start = time.perf_counter()
+    proc = subprocess.run(cmd, check=False)
+    wall = time.perf_counter() - start
+    if proc.returncode != 0:
+        print(f"train exited with {proc.returncode}", file=sys.stderr)
+        return proc.returncode
+    result = json.loads((run_dir / "eval.json").read_text())
+    summary = json.loads((run_dir / "summary.json").read_text())
+    figures = {
+        "machine": f"{platform.machine()} {os.cpu_count()} cores",
+        "overrides": args.overrides,
+        "wall_seconds": round(wall, 1),
+        "budget_seconds": BUDGET_S,
+        "wall_over_budget": round(wall / BUDGET_S, 3),
+        "demo_seconds": summary.get("demo_seconds"),
+        "train_seconds": summary.get("train_seconds"),
+        "steps": summary.get("steps"),
+        "success_once": result["success_once"],
+        "success_at_end": result["success_at_end"],
+        "eval_episodes": result["episodes"],
+        "success_over_target": round(result["success_once"] / TARGET_SUCCESS, 3),
+        "chunk_latency_ms_median": result.get("latency_ms_median"),
+        "meets_targets": wall <= BUDGET_S and result["success_once"] >= TARGET_SUCCESS and result["episodes"] >= 50,
+    }
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(figures, indent=2))
+    print(json.dumps(figures, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
