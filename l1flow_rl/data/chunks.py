@@ -1,0 +1,242 @@
+"""Chunk windows out of a flat step storage: which rows to read (the sampler) and how to read them
+(the storage), with Diffusion Policy's edge padding.
+
+A window is anchored at a *current step* t of an episode of length L. It reads
+
+* observations at t-To+1 ... t, where steps before the episode start repeat the first observation;
+* actions at t-To+1 ... t-To+H (so chunk step To-1 is the action taken at t), where steps before
+  the start repeat the first action and steps after the end follow ``action_pad``: ``"repeat"`` the
+  last action (absolute control), or ``"delta"`` zero motion on every non-gripper dimension with the
+  last gripper command kept (delta control, as ManiSkill's Diffusion Policy baseline pads).
+
+Every step of every episode is an anchor by default, so a chunk ends with up to H-To padded steps;
+``max_pad_after`` caps that (Diffusion Policy's ``pad_after = n_action_steps - 1``), and an episode
+too short to give any window under the cap is an error. ``"action_is_pad"`` marks the padded chunk
+steps (both ends) so a loss can leave them out.
+
+TorchRL's ``SliceSampler`` pads only at the end and ``Sequence`` returns flat [B * H] batches that
+read every key at every window row; this pair reads observations at To rows and actions at H rows,
+which keeps image batches small.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.utils import NestedKey
+from torch import Tensor
+from torchrl.data import LazyMemmapStorage
+from torchrl.data.replay_buffers.samplers import Sampler
+from torchrl.data.replay_buffers.storages import Storage
+
+from l1flow_rl.data.episodes import EpisodeDataError, episode_bounds, where
+
+__all__ = ["ChunkLayout", "ChunkStorage", "ChunkWindowSampler"]
+
+ActionPad = Literal["repeat", "delta"]
+
+
+@dataclass(frozen=True)
+class ChunkLayout:
+    """Shape and padding of a chunk window; shared by :class:`ChunkWindowSampler` and :class:`ChunkStorage`.
+
+    Args:
+        obs_horizon: To, observation steps per window (the last is the current step).
+        pred_horizon: H, action steps per chunk (H >= To).
+        action_pad: ``"repeat"`` (absolute actions) or ``"delta"`` (delta control) padding after the end.
+        gripper_dims: action dimensions kept (not zeroed) by ``"delta"`` padding; ManiSkill's Panda
+            controllers put the gripper last.
+        max_pad_after: at most this many padded steps after an episode's end (None: H - To, every
+            step is a window's current step).
+        source: a name for the data in error messages (a file path).
+    """
+
+    obs_horizon: int = 2
+    pred_horizon: int = 16
+    action_pad: ActionPad = "repeat"
+    gripper_dims: tuple[int, ...] = (-1,)
+    max_pad_after: int | None = None
+    observation_key: NestedKey = "observation"
+    action_key: NestedKey = "action"
+    chunk_key: NestedKey = "action_chunk"
+    pad_key: NestedKey = "action_is_pad"
+    source: str = field(default="episodes", compare=False)
+
+    def __post_init__(self) -> None:
+        if self.obs_horizon < 1 or self.pred_horizon < self.obs_horizon:
+            raise ValueError(
+                f"need 1 <= obs_horizon <= pred_horizon, got obs_horizon={self.obs_horizon}, "
+                f"pred_horizon={self.pred_horizon}"
+            )
+        if self.action_pad not in ("repeat", "delta"):
+            raise ValueError(f"action_pad must be 'repeat' or 'delta', got {self.action_pad!r}")
+        if (
+            self.max_pad_after is not None
+            and not 0 <= self.max_pad_after <= self.pred_horizon - self.obs_horizon
+        ):
+            raise ValueError(
+                "max_pad_after must be in [0, pred_horizon - obs_horizon = "
+                f"{self.pred_horizon - self.obs_horizon}] "
+                f"or None, got {self.max_pad_after}"
+            )
+        object.__setattr__(self, "gripper_dims", tuple(int(d) for d in self.gripper_dims))
+
+    @property
+    def width(self) -> int:
+        """Columns of a window index: To observation rows, then H action rows."""
+        return self.obs_horizon + self.pred_horizon
+
+    def is_window_index(self, index: Any) -> bool:
+        return isinstance(index, Tensor) and index.dim() == 2 and index.shape[1] == self.width
+
+    def arm_mask(self, action_dim: int) -> Tensor:
+        """True on the action dimensions that ``"delta"`` padding zeroes."""
+        mask = torch.ones(action_dim, dtype=torch.bool)
+        for d in self.gripper_dims:
+            if not -action_dim <= d < action_dim:
+                raise ValueError(
+                    f"gripper_dims {self.gripper_dims} out of range for actions of size {action_dim}"
+                )
+            mask[d] = False
+        return mask
+
+
+class ChunkWindowSampler(Sampler):
+    """Draws window anchors uniformly over the valid current steps and returns window indices [B, To + H]
+    (storage rows, clamped to the anchor's episode), to be read by :class:`ChunkStorage`.
+
+    Random draws use the replay buffer's generator (``TensorDictReplayBuffer(generator=...)``), so a
+    seeded buffer repeats its batches.
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import TensorDictReplayBuffer
+        >>> from l1flow_rl.data.chunks import ChunkLayout, ChunkStorage, ChunkWindowSampler
+        >>> steps = TensorDict(
+        ...     {"episode": torch.tensor([0, 0, 0, 1, 1]), "observation": torch.arange(5.0)[:, None],
+        ...      "action": torch.arange(5.0)[:, None]},
+        ...     batch_size=[5],
+        ... )
+        >>> layout = ChunkLayout(obs_horizon=2, pred_horizon=3)
+        >>> storage = ChunkStorage(5, layout=layout)
+        >>> storage.set(range(5), steps)
+        >>> rb = TensorDictReplayBuffer(storage=storage, sampler=ChunkWindowSampler(layout), batch_size=4,
+        ...                             generator=torch.Generator().manual_seed(0))
+        >>> batch = rb.sample()
+        >>> batch["observation"].shape, batch["action_chunk"].shape, batch["action_is_pad"].shape
+        (torch.Size([4, 2, 1]), torch.Size([4, 3, 1]), torch.Size([4, 3]))
+    """
+
+    def __init__(self, layout: ChunkLayout) -> None:
+        self.layout = layout
+        self._cache: tuple[Any, Tensor, Tensor, Tensor] | None = None
+
+    def _episode_table(self, storage: Storage) -> tuple[Tensor, Tensor, Tensor]:
+        """(start row, end row) per stored row and the valid anchor rows; recomputed when the storage "
+        "changes."""
+        key = (len(storage), int(getattr(storage, "_mutation_revision", 0)))
+        if self._cache is None or self._cache[0] != key:
+            data = storage.get(slice(None))
+            start, end = episode_bounds(data.get("episode"), self.layout.source)
+            rows = torch.arange(start.shape[0])
+            valid = torch.ones_like(rows, dtype=torch.bool)
+            if self.layout.max_pad_after is not None:
+                # the chunk's last row t-To+H may lie at most max_pad_after rows past the episode's last row
+                last_needed = rows - self.layout.obs_horizon + self.layout.pred_horizon
+                valid = last_needed - (end - 1) <= self.layout.max_pad_after
+            self._check_every_episode_has_windows(data.get("episode"), start, valid)
+            self._cache = (key, start, end, valid.nonzero().squeeze(1))
+        return self._cache[1], self._cache[2], self._cache[3]
+
+    def _check_every_episode_has_windows(self, episode: Tensor, start: Tensor, valid: Tensor) -> None:
+        starts = start.unique()
+        per_episode = torch.zeros(start.shape[0], dtype=torch.long).index_add_(0, start, valid.long())[starts]
+        if (per_episode == 0).any():
+            first = int(starts[per_episode == 0][0])
+            length = int((start == first).sum())
+            raise EpisodeDataError(
+                f"{where(self.layout.source, int(episode[first]), 'action')}: {length} steps is too "
+                "short for "
+                f"pred_horizon={self.layout.pred_horizon} with obs_horizon={self.layout.obs_horizon} "
+                "and at most "
+                f"max_pad_after={self.layout.max_pad_after} padded steps; it needs at least "
+                f"{self.layout.pred_horizon - self.layout.obs_horizon + 1 - self.layout.max_pad_after} steps "
+                "(raise max_pad_after, or drop the episode from the data)"
+            )
+
+    def validate(self, storage: Storage) -> None:
+        """Check the stored episodes once, before training starts (errors name the episode)."""
+        self._episode_table(storage)
+
+    def sample(self, storage: Storage, batch_size: int) -> tuple[Tensor, dict]:
+        start, end, anchors = self._episode_table(storage)
+        pick = torch.randint(anchors.numel(), (batch_size,), generator=self._rng)
+        t = anchors[pick]
+        t_start, t_last = start[t].unsqueeze(1), end[t].unsqueeze(1) - 1
+        to, h = self.layout.obs_horizon, self.layout.pred_horizon
+        obs_rows = torch.maximum(t.unsqueeze(1) + torch.arange(1 - to, 1), t_start)
+        act_rows = (t.unsqueeze(1) + torch.arange(1 - to, h - to + 1)).clamp(min=t_start, max=t_last)
+        return torch.cat([obs_rows, act_rows], dim=1), {}
+
+    def _empty(self) -> None:
+        self._cache = None
+
+    def state_dict(self) -> dict[str, Any]:
+        return {}  # stateless: the randomness lives in the buffer's generator
+
+    def load_state_dict(self, state_dict: dict[str, Any]) -> None:
+        return None
+
+    def dumps(self, path) -> None:
+        return None
+
+    def loads(self, path) -> None:
+        return None
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.layout})"
+
+
+class ChunkStorage(LazyMemmapStorage):
+    """A ``LazyMemmapStorage`` of steps that also reads chunk windows.
+
+    ``get`` with a window index [B, To + H] from :class:`ChunkWindowSampler` returns a [B] TensorDict:
+    the observation key at the To observation rows ([B, To, ...]), ``chunk_key`` [B, H, A] with the
+    padding rule applied, ``pad_key`` [B, H] (True on padded steps) and every other stored entry at the
+    current step (``"episode"``, ``"step"``, ``("next", "reward")``, ...). Any other index reads rows.
+    """
+
+    def __init__(self, max_size: int, *, layout: ChunkLayout, **kwargs) -> None:
+        super().__init__(max_size, **kwargs)
+        self.layout = layout
+
+    def get(self, index):
+        if not self.layout.is_window_index(index):
+            return super().get(index)
+        lay = self.layout
+        data: TensorDictBase = self._storage
+        obs_rows, act_rows = index[:, : lay.obs_horizon], index[:, lay.obs_horizon :]
+        out = data.exclude(lay.observation_key, lay.action_key)[obs_rows[:, -1]]
+        out.set(lay.observation_key, data.get(lay.observation_key)[obs_rows])
+        actions = data.get(lay.action_key)[act_rows]
+        col = torch.arange(lay.pred_horizon)
+        current = lay.obs_horizon - 1
+        same_as_next = torch.zeros_like(act_rows, dtype=torch.bool)
+        same_as_next[:, :-1] = act_rows[:, :-1] == act_rows[:, 1:]
+        same_as_prev = torch.zeros_like(act_rows, dtype=torch.bool)
+        same_as_prev[:, 1:] = act_rows[:, 1:] == act_rows[:, :-1]
+        # rows repeat only where clamped: the first row before the start, the last row after the end
+        pad_before = same_as_next & (col < current)
+        pad_after = same_as_prev & (col > current)
+        if lay.action_pad == "delta":
+            arm = lay.arm_mask(actions.shape[-1]).to(actions.device)
+            actions = torch.where(
+                pad_after.unsqueeze(-1) & arm, torch.zeros((), dtype=actions.dtype), actions
+            )
+        out.set(lay.chunk_key, actions)
+        out.set(lay.pad_key, pad_before | pad_after)
+        return out

@@ -1,0 +1,179 @@
+"""ManiSkill trajectory files: ``NAME.h5`` (``traj_<id>`` groups) plus ``NAME.json`` (env and episode info).
+
+State files store ``obs`` as one flat array [T+1, D]; rgb files store the observation dict, which is
+flattened the way ManiSkill's ``FlattenRGBDObservationWrapper`` does (``agent`` then ``extra`` leaves
+as ``"state"``, the camera as channels-first ``"rgb"``), so offline data matches the live env.
+Rewards: ``("next", "reward")`` is the recorded reward (the replay's ``--reward-mode``, e.g.
+``normalized_dense``), or the sparse reward where none was recorded; ``("next", "sparse_reward")`` is
+ManiSkill's sparse reward, success - fail, rebuilt from the per-step flags.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import h5py
+import torch
+from tensordict import TensorDict
+
+from l1flow_rl.data.episodes import (
+    EpisodeDataError,
+    as_tensor,
+    assemble_episode,
+    check_finite,
+    check_steps,
+    to_uint8_image,
+    where,
+)
+from l1flow_rl.data.formats.base import EpisodeFile, open_h5
+
+__all__ = ["ManiSkillFile"]
+
+
+class ManiSkillFile(EpisodeFile):
+    """Reader for a ManiSkill ``.h5`` + ``.json`` pair.
+
+    Args:
+        path: the ``.h5`` file; its ``.json`` must sit beside it.
+        control_mode: when given, every episode must have been recorded in it.
+        camera: which camera to use when the file has several (rgb files).
+    """
+
+    format_name = "maniskill"
+
+    def __init__(self, path: Path, *, control_mode: str | None = None, camera: str | None = None) -> None:
+        super().__init__(path)
+        self.camera = camera
+        json_path = path.with_suffix(".json")
+        if not json_path.is_file():
+            raise EpisodeDataError(
+                f"{path}: a ManiSkill trajectory needs its metadata file {json_path}, which is missing"
+            )
+        try:
+            meta = json.loads(json_path.read_text())
+            self.env_info = meta["env_info"]
+            self.episodes = meta["episodes"]
+        except (json.JSONDecodeError, KeyError, TypeError) as err:
+            raise EpisodeDataError(
+                f"{json_path}: not a ManiSkill trajectory metadata file (truncated or not JSON with "
+                "'env_info' "
+                f"and 'episodes'): {err!r}"
+            ) from err
+        env_kwargs = self.env_info.get("env_kwargs", {})
+        self.control_mode = env_kwargs.get("control_mode")
+        self.obs_mode = env_kwargs.get("obs_mode")
+        for ep in self.episodes:
+            mode = ep.get("control_mode", self.control_mode)
+            if control_mode is not None and mode != control_mode:
+                raise EpisodeDataError(
+                    f"{where(json_path, ep.get('episode_id'), 'control_mode')}: recorded in {mode!r}, but "
+                    f"{control_mode!r} was requested; replay the demos into it with ManiSkill's replay tool "
+                    f"(-c {control_mode}) or ask for {mode!r}"
+                )
+        self.h5 = open_h5(path)
+        for ep in self.episodes:
+            name = f"traj_{ep['episode_id']}"
+            if name not in self.h5:
+                raise EpisodeDataError(
+                    f"{where(path, ep['episode_id'], name)}: listed in {json_path.name} but missing "
+                    "from the file "
+                    "(truncated or mismatched pair)"
+                )
+
+    @property
+    def metadata(self) -> dict:
+        return {
+            "format": self.format_name,
+            "source": str(self.path),
+            "env_id": self.env_info.get("env_id"),
+            "control_mode": self.control_mode,
+            "obs_mode": self.obs_mode,
+        }
+
+    def episode_ids(self) -> list[int]:
+        return [int(ep["episode_id"]) for ep in self.episodes]
+
+    def episode_length(self, episode: int) -> int:
+        return self._dataset(episode, "actions").shape[0]
+
+    def _dataset(self, episode: int, key: str):
+        group = self.h5[f"traj_{episode}"]
+        if key not in group:
+            raise EpisodeDataError(f"{where(self.path, episode, key)}: missing (has {sorted(group)})")
+        return group[key]
+
+    def _read(self, episode: int, key: str) -> torch.Tensor:
+        return as_tensor(self._dataset(episode, key)[()], self.path, episode, f"traj_{episode}/{key}")
+
+    def _observation(self, episode: int, steps: int):
+        node = self._dataset(episode, "obs")
+        key = f"traj_{episode}/obs"
+        if isinstance(node, h5py.Dataset):
+            obs = check_steps(
+                as_tensor(node[()], self.path, episode, key), steps, self.path, episode, key, extra=1
+            )
+            return check_finite(obs.float(), self.path, episode, key)
+        from l1flow_rl.envs.maniskill_obs import flatten_maniskill_obs
+
+        wanted = {g: node[g] for g in ("agent", "extra", "sensor_data") if g in node}
+        raw = _read_group(wanted, self.path, episode, key)
+        try:
+            flat = flatten_maniskill_obs(raw, camera=self.camera)
+        except (KeyError, TypeError, ValueError) as err:
+            raise EpisodeDataError(f"{where(self.path, episode, key)}: {err}") from err
+        state = check_steps(flat["state"], steps, self.path, episode, f"{key}/agent+extra", extra=1)
+        check_finite(state, self.path, episode, f"{key}/agent+extra")
+        if "rgb" not in flat:
+            return state
+        rgb = check_steps(flat["rgb"], steps, self.path, episode, f"{key}/sensor_data", extra=1)
+        return {"state": state, "rgb": to_uint8_image(rgb, self.path, episode, key, channels_last=False)}
+
+    def read_episode(self, episode: int) -> TensorDict:
+        actions = self._read(episode, "actions")
+        steps = actions.shape[0]
+        if actions.dim() != 2 or steps == 0:
+            raise EpisodeDataError(
+                f"{where(self.path, episode, f'traj_{episode}/actions')}: expected [T >= 1, A], got "
+                f"{tuple(actions.shape)}"
+            )
+        check_finite(actions, self.path, episode, f"traj_{episode}/actions")
+        observation = self._observation(episode, steps)
+        group = self.h5[f"traj_{episode}"]
+        flags = {}
+        for name in ("success", "fail", "terminated"):
+            if name in group:
+                flags[name] = check_steps(self._read(episode, name).bool(), steps, self.path, episode, name)
+        sparse = torch.zeros(steps)
+        if "success" in flags:
+            sparse = flags["success"].float() - (flags["fail"].float() if "fail" in flags else 0.0)
+        reward = None
+        if "rewards" in group:
+            reward = check_steps(self._read(episode, "rewards"), steps, self.path, episode, "rewards")
+            check_finite(reward, self.path, episode, f"traj_{episode}/rewards")
+        extra = {"sparse_reward": sparse}
+        if "success" in flags:
+            extra["success"] = flags["success"]
+        return assemble_episode(
+            episode,
+            observation,
+            actions,
+            reward=reward if reward is not None else sparse,
+            terminated=bool(flags["terminated"][-1]) if "terminated" in flags else False,
+            next_extra=extra,
+        )
+
+    def close(self) -> None:
+        self.h5.close()
+
+
+def _read_group(group, source, episode, key) -> dict:
+    out = {}
+    for name, node in group.items():
+        if isinstance(node, h5py.Group):
+            out[name] = _read_group(node, source, episode, f"{key}/{name}")
+        elif name in ("depth", "segmentation", "seg"):
+            continue  # only rgb is used; skip decompressing the other image streams
+        else:
+            out[name] = as_tensor(node[()], source, episode, f"{key}/{name}").numpy()
+    return out

@@ -1,0 +1,200 @@
+"""``load_episodes``: any supported demonstration file -> one flat TensorDict of steps.
+
+Supported (detected from the content, not the name):
+
+* ManiSkill ``.h5`` with its ``.json`` (options: ``control_mode`` to check, ``camera``);
+* robomimic / robosuite ``.hdf5`` (``state_keys``, ``image_key``);
+* Diffusion Policy zarr replay buffers, a ``.zarr`` directory (``state_keys``, ``image_key``, ``action_key``);
+* a LeRobot dataset as TorchRL's ``LeRobotExperienceReplay`` stores it on disk (``camera``).
+
+With ``memmap_dir`` the episodes stream one at a time into a TorchRL ``LazyMemmapStorage`` under that
+directory, so data larger than RAM loads; opening the same source again reuses the stored copy.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import h5py
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import LazyMemmapStorage
+
+from l1flow_rl.data.episodes import EpisodeDataError, where
+from l1flow_rl.data.formats.base import EpisodeFile
+from l1flow_rl.data.formats.dp_zarr import DiffusionPolicyZarr
+from l1flow_rl.data.formats.lerobot import LeRobotDirectory, is_raw_lerobot, is_torchrl_lerobot
+from l1flow_rl.data.formats.maniskill import ManiSkillFile
+from l1flow_rl.data.formats.robomimic import RobomimicFile
+
+__all__ = ["episodes_metadata", "load_episodes", "open_episode_file"]
+
+#: Written beside a memory-mapped copy: where it came from (for reuse checks and error messages).
+SOURCE_FILE = "l1flow_source.json"
+_META_ATTR = "_l1flow_episodes_metadata"
+
+
+def _is_zarr(path: Path) -> bool:
+    return (path / "zarr.json").is_file() or (path / ".zgroup").is_file()
+
+
+def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
+    """The reader for ``path``'s format, opened. Errors name the file and what was expected."""
+    path = Path(path)
+    if not path.exists():
+        raise EpisodeDataError(f"{path}: no such file or directory")
+    if path.is_dir():
+        if is_torchrl_lerobot(path) or is_raw_lerobot(path):
+            reader = LeRobotDirectory
+        elif _is_zarr(path):
+            reader = DiffusionPolicyZarr
+        else:
+            raise EpisodeDataError(
+                f"{path}: a directory that is neither a zarr store nor a LeRobot dataset; supported: "
+                "ManiSkill "
+                ".h5+.json, robomimic .hdf5, Diffusion Policy .zarr, LeRobot (TorchRL copy)"
+            )
+    elif h5py.is_hdf5(path):
+        with h5py.File(path, "r") as f:
+            reader = RobomimicFile if "data" in f else ManiSkillFile
+    else:
+        raise EpisodeDataError(
+            f"{path}: not a supported demonstration file (not HDF5; truncated?); supported: ManiSkill "
+            ".h5+.json, "
+            "robomimic .hdf5, Diffusion Policy .zarr directory, LeRobot directory (TorchRL copy)"
+        )
+    try:
+        return reader(path, **options)
+    except TypeError as err:
+        raise TypeError(f"{path}: option not understood by the {reader.format_name} reader: {err}") from err
+
+
+def episodes_metadata(episodes: TensorDictBase) -> dict:
+    """What :func:`load_episodes` knew about the data (format, source, env id, control mode); {} if "
+    "unknown."""
+    meta = episodes.__dict__.get(_META_ATTR)
+    if meta is None and episodes.is_memmap() and episodes.saved_path:
+        file = Path(episodes.saved_path) / SOURCE_FILE
+        meta = json.loads(file.read_text())["metadata"] if file.is_file() else None
+    return dict(meta or {})
+
+
+def _attach(episodes: TensorDictBase, meta: dict) -> TensorDictBase:
+    # TensorDicts carry no user metadata; a plain attribute on this object is enough for the
+    # make_chunk_buffer(load_episodes(...)) hand-over (a memory-mapped copy keeps it on disk).
+    episodes.__dict__[_META_ATTR] = meta
+    return episodes
+
+
+def _episode_lengths(reader: EpisodeFile) -> tuple[list[int], list[int]]:
+    ids = reader.episode_ids()
+    if not ids:
+        raise EpisodeDataError(f"{reader.path}: contains no episodes")
+    lengths = [reader.episode_length(e) for e in ids]
+    for e, n in zip(ids, lengths):
+        if n < 1:
+            raise EpisodeDataError(f"{where(reader.path, e, 'action')}: the episode has no steps")
+    return ids, lengths
+
+
+def _stack(reader: EpisodeFile, ids: list[int], parts: list[TensorDict]) -> TensorDict:
+    try:
+        return torch.cat(parts, 0)
+    except (RuntimeError, KeyError, ValueError) as err:
+        first = parts[0]
+        for e, part in zip(ids, parts):
+            if set(part.keys(True, True)) != set(first.keys(True, True)):
+                raise EpisodeDataError(
+                    f"{where(reader.path, e)}: entries {sorted(map(str, part.keys(True, True)))} differ "
+                    "from episode "
+                    f"{ids[0]}'s {sorted(map(str, first.keys(True, True)))}"
+                ) from err
+        raise EpisodeDataError(f"{reader.path}: episodes do not share shapes: {err}") from err
+
+
+def _fingerprint(path: Path, options: dict) -> dict:
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    if path.suffix == ".h5" and path.with_suffix(".json").is_file():
+        files.append(path.with_suffix(".json"))
+    return {
+        "source": str(path.resolve()),
+        "bytes": sum(p.stat().st_size for p in files),
+        "mtime_ns": max(p.stat().st_mtime_ns for p in files),
+        "options": {k: repr(v) for k, v in sorted(options.items())},
+    }
+
+
+def _load_memmap(reader: EpisodeFile, options: dict, target: Path, progress: bool) -> TensorDictBase:
+    fingerprint = _fingerprint(reader.path, options)
+    marker = target / SOURCE_FILE
+    if marker.is_file():
+        stored = json.loads(marker.read_text())
+        if stored["fingerprint"] != fingerprint:
+            raise EpisodeDataError(
+                f"{target}: holds a stored copy of {stored['fingerprint']['source']} (or of an older "
+                "version of it, "
+                f"or with other options), not of {reader.path} as now; use another memmap_dir or delete "
+                "this one"
+            )
+        return TensorDict.load_memmap(target)
+    if target.exists():
+        raise EpisodeDataError(
+            f"{target}: exists and is not a stored copy made by load_episodes; choose another memmap_dir"
+        )
+    ids, lengths = _episode_lengths(reader)
+    tmp = target.parent / f".{target.name}.partial-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    storage = LazyMemmapStorage(sum(lengths), scratch_dir=tmp, existsok=True, auto_cleanup=False)
+    row = 0
+    episodes = zip(ids, lengths)
+    if progress:
+        from tqdm import tqdm
+
+        episodes = tqdm(list(episodes), desc=f"storing {reader.path.name}", unit="episode")
+    try:
+        for e, n in episodes:
+            part = reader.read_episode(e)
+            try:
+                storage.set(range(row, row + n), part)
+            except (RuntimeError, KeyError, ValueError) as err:
+                raise EpisodeDataError(
+                    f"{where(reader.path, e)}: entries or shapes differ from the first episode's: {err}"
+                ) from err
+            row += n
+        storage.dumps(tmp)
+        marker_tmp = tmp / SOURCE_FILE
+        marker_tmp.write_text(json.dumps({"fingerprint": fingerprint, "metadata": reader.metadata}, indent=1))
+        os.replace(tmp, target)  # the copy only appears complete
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return TensorDict.load_memmap(target)
+
+
+def load_episodes(
+    path: str | os.PathLike, *, memmap_dir: str | os.PathLike | None = None, progress: bool = False, **options
+) -> TensorDictBase:
+    """Read every episode of a demonstration file into the layout of :mod:`l1flow_rl.data.episodes`.
+
+    Args:
+        path: a supported file or directory (see the module docstring).
+        memmap_dir: store the steps memory-mapped under this directory (reused when the source is
+            unchanged) instead of in RAM.
+        progress: show a progress bar while storing.
+        **options: for the format's reader, e.g. ``control_mode="pd_ee_delta_pos"`` for ManiSkill.
+
+    Example:
+        >>> eps = load_episodes("demos/PushCube-v1.h5", control_mode="pd_ee_delta_pos")  # doctest: +SKIP
+        >>> eps["observation"].shape, eps["action"].shape, eps["next", "reward"].shape  # doctest: +SKIP
+        (torch.Size([7000, 35]), torch.Size([7000, 4]), torch.Size([7000, 1]))
+    """
+    with open_episode_file(path, **options) as reader:
+        if memmap_dir is not None:
+            data = _load_memmap(reader, options, Path(memmap_dir), progress)
+        else:
+            ids, _ = _episode_lengths(reader)
+            data = _stack(reader, ids, [reader.read_episode(e) for e in ids])
+        return _attach(data, reader.metadata)
