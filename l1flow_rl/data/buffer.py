@@ -43,7 +43,7 @@ def _open_storage(
     episodes: TensorDictBase, layout: ChunkLayout, storage_dir: str | os.PathLike | None, meta: dict
 ) -> ChunkStorage:
     n = episodes.shape[0]
-    saved = Path(episodes.saved_path) if episodes.is_memmap() and episodes.saved_path else None
+    saved = Path(meta["memmap_dir"]) if meta.get("memmap_dir") else None
     if storage_dir is None and saved is not None and (saved / _STORAGE_METADATA).is_file():
         return _reopen(saved, n, layout)  # load_episodes(memmap_dir=...) already made a TorchRL storage
     if storage_dir is None:

@@ -24,7 +24,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import LazyMemmapStorage
 
 from l1flow_rl.data.episodes import EpisodeDataError, where
-from l1flow_rl.data.formats.base import EpisodeFile
+from l1flow_rl.data.formats.base import EpisodeFile, open_h5
 from l1flow_rl.data.formats.dp_zarr import DiffusionPolicyZarr
 from l1flow_rl.data.formats.lerobot import LeRobotDirectory, is_raw_lerobot, is_torchrl_lerobot
 from l1flow_rl.data.formats.maniskill import ManiSkillFile
@@ -58,7 +58,7 @@ def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
                 ".h5+.json, robomimic .hdf5, Diffusion Policy .zarr, LeRobot (TorchRL copy)"
             )
     elif h5py.is_hdf5(path):
-        with h5py.File(path, "r") as f:
+        with open_h5(path) as f:
             reader = RobomimicFile if "data" in f else ManiSkillFile
     else:
         raise EpisodeDataError(
@@ -73,13 +73,9 @@ def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
 
 
 def episodes_metadata(episodes: TensorDictBase) -> dict:
-    """What :func:`load_episodes` knew about the data (format, source, env id, control mode); {} if "
-    "unknown."""
-    meta = episodes.__dict__.get(_META_ATTR)
-    if meta is None and episodes.is_memmap() and episodes.saved_path:
-        file = Path(episodes.saved_path) / SOURCE_FILE
-        meta = json.loads(file.read_text())["metadata"] if file.is_file() else None
-    return dict(meta or {})
+    """What :func:`load_episodes` knew about the data (format, source, env id, control mode, and
+    ``memmap_dir`` for a stored copy); {} for episodes it did not make."""
+    return dict(episodes.__dict__.get(_META_ATTR) or {})
 
 
 def _attach(episodes: TensorDictBase, meta: dict) -> TensorDictBase:
@@ -194,7 +190,6 @@ def load_episodes(
     with open_episode_file(path, **options) as reader:
         if memmap_dir is not None:
             data = _load_memmap(reader, options, Path(memmap_dir), progress)
-        else:
-            ids, _ = _episode_lengths(reader)
-            data = _stack(reader, ids, [reader.read_episode(e) for e in ids])
-        return _attach(data, reader.metadata)
+            return _attach(data, {**reader.metadata, "memmap_dir": str(Path(memmap_dir).resolve())})
+        ids, _ = _episode_lengths(reader)
+        return _attach(_stack(reader, ids, [reader.read_episode(e) for e in ids]), reader.metadata)

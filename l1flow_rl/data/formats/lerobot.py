@@ -113,7 +113,7 @@ class LeRobotDirectory(EpisodeFile):
         observation: torch.Tensor | dict = state
         if self.camera is not None:
             key = f"observation.images.{self.camera}"
-            image = rows.get(("observation", "image", self.camera)).as_tensor()
+            image = rows.get(("observation", "image", self.camera)).clone()
             observation = {
                 "state": state,
                 "rgb": to_uint8_image(image, self.path, episode, key, channels_last=False, float_max=1.0),

@@ -1,7 +1,8 @@
 """robomimic / robosuite ``.hdf5``: ``data/demo_<i>/{obs/<key>, actions, rewards, dones}``.
 
-Low-dimensional ``obs`` entries are concatenated (in ``state_keys`` order, default: every non-image
-key in the file's order) into ``"state"``; one camera (``*_image`` key) becomes ``"rgb"``.
+Low-dimensional ``obs`` entries are concatenated into ``"state"`` (in ``state_keys`` order, default:
+every non-image key in the file's order, which h5py gives alphabetically); one camera (``*_image``
+key) becomes ``"rgb"``.
 """
 
 from __future__ import annotations
