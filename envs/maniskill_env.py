@@ -1,0 +1,319 @@
+"""A ManiSkill task as a TorchRL ``EnvBase``: physx_cpu (one env per process) or physx_cuda (N in one).
+
+Hand-written rather than ``GymWrapper`` because none of TorchRL's wrappers handles what ManiSkill
+needs: batched observations with an unbatched action space, partial resets by ``env_idx`` on the
+GPU, per-episode seeds, and surviving a simulator exception without killing a ParallelEnv worker.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+from l1flow_rl.envs.maniskill_obs import flatten_maniskill_obs
+from tensordict import TensorDict, TensorDictBase
+from torch import Tensor
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from l1flow_rl.config import TaskConfig
+
+__all__ = ["ManiSkillEnv"]
+
+INSTALL_HINT = "ManiSkill is not installed: pip install 'l1flow-rl[maniskill]'"
+
+
+def _import_maniskill():
+    try:
+        import gymnasium as gym
+        import mani_skill.envs  # noqa: F401  (registers the tasks with gymnasium)
+    except ImportError as err:
+        raise ImportError(INSTALL_HINT) from err
+    return gym
+
+
+class ManiSkillEnv(EnvBase):
+    """One ManiSkill task, one TorchRL env.
+
+    ``num_envs=None`` gives an unbatched env (batch size ``[]``), the unit a ``ParallelEnv`` worker
+    runs; ``num_envs=N`` gives batch size ``[N]``. On ``device="cpu"`` ManiSkill runs physx_cpu,
+    which holds one env per process (N must be 1: use :func:`~l1flow_rl.envs.make_env`, which
+    spreads CPU envs over worker processes); on a CUDA device it runs physx_cuda with N envs in
+    one process and every tensor stays on that device.
+
+    Outputs: ``"observation"`` (state: float [*B, D]; rgb: TensorDict ``{"state", "rgb" uint8
+    [*B, 3, H, W]}``), ``"reward"``, ``"done"``/``"terminated"``/``"truncated"`` (truncated at the
+    task's ``max_episode_steps``), ``"success"`` (ManiSkill's ``info["success"]``) and
+    ``"sim_error"``. With ``ignore_terminations=True`` (ManiSkill's evaluation setting) success
+    never ends an episode. A simulator exception in ``step`` ends the episode(s) it hit with
+    ``sim_error=True`` (message from :meth:`sim_error_message`) instead of raising; the next reset
+    rebuilds the simulator. ``reset(seed=...)`` takes one seed per env being reset.
+
+    PhysX keeps solver state across ManiSkill resets, so an episode's trajectory depends slightly
+    on the episodes run before it in the same scene (raw ManiSkill does the same; contact-rich
+    episodes can diverge). ``reconfigure_each_episode=True`` (CPU only) rebuilds the scene at every
+    reset, so that an episode depends on its seed alone, at ~0.4 s per reset here.
+
+    Example:
+        >>> from l1flow_rl.config import load_task_config
+        >>> env = ManiSkillEnv(load_task_config("maniskill_pushcube", max_episode_steps=5))
+        >>> env.rollout(10).batch_size  # stops at the time limit
+        torch.Size([1, 5])
+    """
+
+    def __init__(
+        self,
+        task: TaskConfig,
+        *,
+        num_envs: int | None = 1,
+        device: str | torch.device = "cpu",
+        ignore_terminations: bool = True,
+        render: bool = True,
+        camera: str | None = None,
+        reconfigure_each_episode: bool = False,
+    ) -> None:
+        device = torch.device(device)
+        if task.simulator != "maniskill":
+            raise ValueError(
+                f"task {task.name!r} has simulator={task.simulator!r}; ManiSkillEnv needs 'maniskill'"
+            )
+        if task.obs_mode not in ("state", "rgb"):
+            raise ValueError(f"task {task.name!r}: obs_mode must be 'state' or 'rgb', got {task.obs_mode!r}")
+        if num_envs is not None and num_envs < 1:
+            raise ValueError(f"num_envs must be >= 1 or None, got {num_envs}")
+        if device.type == "cpu" and num_envs not in (None, 1):
+            raise ValueError(
+                f"ManiSkill's physx_cpu backend runs one env per process, got num_envs={num_envs}; "
+                "use l1flow_rl.envs.make_env (worker processes) or a CUDA device"
+            )
+        if reconfigure_each_episode and device.type != "cpu":
+            raise ValueError(
+                "reconfigure_each_episode needs physx_cpu: physx_cuda cannot rebuild some envs of a scene"
+            )
+        super().__init__(device=device, batch_size=torch.Size([] if num_envs is None else [num_envs]))
+        self.task = task
+        self.ignore_terminations = ignore_terminations
+        self.render_enabled = render
+        self.camera = camera
+        self.reconfigure_each_episode = reconfigure_each_episode
+        self.last_sim_error: str | None = None
+        self._sim_envs = num_envs or 1
+        self._broken = False
+        self._gym_env = self._make_sim()
+        self._make_specs()
+        self._last_obs: TensorDictBase | Tensor | None = None
+        self._last_success: Tensor | None = None
+        self._seed: int | None = None
+
+    # -- simulator --------------------------------------------------------------------------------
+
+    def _make_sim(self):
+        gym = _import_maniskill()
+        task = self.task
+        kwargs: dict[str, Any] = dict(task.env_kwargs)
+        if task.obs_mode == "rgb":
+            kwargs.setdefault("sensor_configs", {"width": task.image_size, "height": task.image_size})
+        if not torch.cuda.is_available():
+            # No GPU renderer to find: say so, instead of ManiSkill warning on every env it makes.
+            kwargs.setdefault("render_backend", "cpu")
+        return gym.make(
+            task.env_id,
+            num_envs=self._sim_envs,
+            obs_mode=task.obs_mode,
+            control_mode=task.control_mode,
+            reward_mode=task.reward_mode,
+            max_episode_steps=task.max_episode_steps,
+            sim_backend="physx_cpu" if self.device.type == "cpu" else "physx_cuda",
+            render_mode="rgb_array" if self.render_enabled else None,
+            **kwargs,
+        )
+
+    @property
+    def sim(self):
+        """The underlying ManiSkill ``BaseEnv`` (``gym_env.unwrapped``)."""
+        return self._gym_env.unwrapped
+
+    def _make_specs(self) -> None:
+        batch, device = self.batch_size, self.device
+        space = self.sim.single_observation_space
+        if self.task.obs_mode == "state":
+            observation = Unbounded(shape=(*batch, *space.shape), dtype=torch.float32, device=device)
+        else:
+            example = flatten_maniskill_obs(space.sample(), camera=self.camera)
+            observation = Composite(
+                state=Unbounded(shape=(*batch, *example["state"].shape), dtype=torch.float32, device=device),
+                rgb=Bounded(0, 255, shape=(*batch, *example["rgb"].shape), dtype=torch.uint8, device=device),
+                shape=batch,
+                device=device,
+            )
+        flag = {"shape": (*batch, 1), "dtype": torch.bool, "device": device}
+        self.observation_spec = Composite(
+            observation=observation,
+            success=Categorical(2, **flag),
+            sim_error=Categorical(2, **flag),
+            shape=batch,
+            device=device,
+        )
+        action_space = self.sim.single_action_space
+        self.action_spec = Bounded(
+            low=torch.as_tensor(action_space.low, device=device).expand(*batch, *action_space.shape),
+            high=torch.as_tensor(action_space.high, device=device).expand(*batch, *action_space.shape),
+            shape=(*batch, *action_space.shape),
+            dtype=torch.float32,
+            device=device,
+        )
+        self.reward_spec = Unbounded(shape=(*batch, 1), dtype=torch.float32, device=device)
+        self.done_spec = Composite(
+            done=Categorical(2, **flag),
+            terminated=Categorical(2, **flag),
+            truncated=Categorical(2, **flag),
+            shape=batch,
+            device=device,
+        )
+
+    # -- conversions -----------------------------------------------------------------------------
+
+    def _unsim(self, value: Tensor) -> Tensor:
+        """ManiSkill's [num_envs, ...] -> this env's [*batch, ...] on this env's device."""
+        value = value.to(self.device)
+        return value.squeeze(0) if not self.batch_size else value
+
+    def _observation(self, raw: Any) -> Tensor | TensorDictBase:
+        if self.task.obs_mode == "state":
+            return self._unsim(raw).to(torch.float32)
+        flat = flatten_maniskill_obs(raw, camera=self.camera)
+        return TensorDict(
+            {k: self._unsim(v) for k, v in flat.items()}, batch_size=self.batch_size, device=self.device
+        )
+
+    def _flag(self, value: Any) -> Tensor:
+        value = torch.as_tensor(value, device=self.device).to(torch.bool).reshape(self._sim_envs, 1)
+        return self._unsim(value)
+
+    def _output(self, obs, reward, terminated, truncated, info, sim_error: bool) -> TensorDictBase:
+        success = info.get("success") if isinstance(info, dict) else None
+        if success is None:
+            success = torch.zeros(self._sim_envs, dtype=torch.bool)
+        done = terminated | truncated
+        return TensorDict(
+            {
+                "observation": obs,
+                "reward": self._unsim(
+                    torch.as_tensor(reward, dtype=torch.float32).reshape(self._sim_envs, 1)
+                ),
+                "done": self._flag(done),
+                "terminated": self._flag(terminated),
+                "truncated": self._flag(truncated),
+                "success": self._flag(success),
+                "sim_error": self._flag(torch.full((self._sim_envs,), sim_error)),
+            },
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    # -- EnvBase ---------------------------------------------------------------------------------
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        n = self._sim_envs
+        if not self._broken:
+            action = tensordict.get("action")
+            if not self.batch_size:
+                action = action.unsqueeze(0)
+            try:
+                obs, reward, terminated, truncated, info = self._gym_env.step(action)
+            except Exception as err:  # a simulator failure ends these episodes; the next reset rebuilds
+                self._broken = True
+                self.last_sim_error = f"{type(err).__name__}: {err}"
+            else:
+                terminated = torch.as_tensor(terminated, device=self.device).reshape(n)
+                if self.ignore_terminations:
+                    terminated = torch.zeros_like(terminated)
+                truncated = torch.as_tensor(truncated, device=self.device).reshape(n)
+                self._last_obs = self._observation(obs)
+                return self._output(self._last_obs, reward, terminated, truncated, info, sim_error=False)
+        failed = torch.ones(n, dtype=torch.bool, device=self.device)
+        return self._output(self._last_obs, torch.zeros(n), ~failed, failed, {}, sim_error=True)
+
+    def _reset(
+        self, tensordict: TensorDictBase | None = None, *, seed: Any = None, **kwargs
+    ) -> TensorDictBase:
+        if kwargs:
+            raise TypeError(f"ManiSkillEnv.reset got unexpected keyword arguments {sorted(kwargs)}")
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        idx = torch.arange(self._sim_envs, device=self.device)
+        if mask is not None and self.batch_size:
+            idx = mask.reshape(self._sim_envs).nonzero().squeeze(-1)
+        elif mask is not None and not bool(mask.any()):
+            idx = idx[:0]
+        if self._broken:  # a failed physx scene is not trusted again: rebuild it, with every env in it
+            if len(idx) < self._sim_envs:
+                raise RuntimeError(
+                    f"the simulator failed ({self.last_sim_error}) and is rebuilt at the next reset, "
+                    f"which must reset all {self._sim_envs} envs of the scene"
+                )
+            self._gym_env.close()
+            self._gym_env = self._make_sim()
+            self._broken, self.last_sim_error = False, None
+        seeds = self._episode_seeds(seed, len(idx))
+        if len(idx) > 0 or self._last_obs is None:
+            raw_obs, info = self._sim_reset(idx, seeds)
+            self._last_obs, self._last_success = self._observation(raw_obs), info.get("success")
+        n = self._sim_envs
+        no = torch.zeros(n, dtype=torch.bool, device=self.device)
+        out = self._output(self._last_obs, torch.zeros(n), no, no, {"success": self._last_success}, False)
+        return out.exclude("reward")
+
+    def _sim_reset(self, idx: Tensor, seeds: list[int] | None) -> tuple[Any, dict]:
+        if len(idx) == self._sim_envs:
+            options = {"reconfigure": True} if self.reconfigure_each_episode else None
+            return self._gym_env.reset(
+                seed=seeds if seeds is None or len(seeds) > 1 else seeds[0], options=options
+            )
+        if seeds is not None:
+            # ManiSkill takes either one seed or one per env; keep the seeds of the envs not reset.
+            current = self.sim._episode_seed
+            full = np.zeros(self._sim_envs, dtype=np.int64)
+            if current is not None and np.size(current) == self._sim_envs:
+                full[:] = np.asarray(current, dtype=np.int64).reshape(-1)
+            full[idx.cpu().numpy()] = seeds
+            seeds = full.tolist()
+        return self._gym_env.reset(seed=seeds, options={"env_idx": idx})
+
+    def _episode_seeds(self, seed: Any, count: int) -> list[int] | None:
+        if seed is None and self._seed is not None:  # set_seed(): consecutive seeds from there on
+            seed = list(range(self._seed, self._seed + count))
+            self._seed += count
+        if seed is None:
+            return None
+        seeds = [
+            int(s) for s in (seed.reshape(-1).tolist() if isinstance(seed, Tensor) else np.atleast_1d(seed))
+        ]
+        if len(seeds) != count:
+            raise ValueError(f"reset(seed=...): got {len(seeds)} seeds for {count} envs being reset")
+        return seeds
+
+    def _set_seed(self, seed: int | None) -> None:
+        self._seed = seed
+
+    def sim_error_message(self) -> str | None:
+        """The simulator exception that ended the current episode(s), until the next reset."""
+        return self.last_sim_error
+
+    def render_frames(self) -> Tensor:
+        """The render camera's RGB frame per env: uint8 [*batch, H, W, 3] on the CPU."""
+        if not self.render_enabled:
+            raise RuntimeError("make the env with render=True to render frames")
+        return self._unsim(torch.as_tensor(self._gym_env.render())).cpu()
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        if getattr(self, "_gym_env", None) is not None:
+            self._gym_env.close()
+            self._gym_env = None
+        super().close(raise_if_closed=raise_if_closed)
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}(env_id={self.task.env_id!r}, obs_mode={self.task.obs_mode!r}, "
+            f"batch_size={tuple(self.batch_size)}, device={self.device})"
+        )
