@@ -173,7 +173,7 @@ def run_train(cfg: DictConfig) -> int:
     if resume_state is not None:
         trainer.load_state_dict(resume_state)
         set_rng_state(resume_state["rng"])
-        buffer.sampler.load_state_dict(resume_state["sampler"])
+        _set_buffer_rng(buffer, resume_state["sampler_rng"])
         history, evals, best = resume_state["history"], resume_state["evals"], resume_state["best"]
         logger_state = resume_state.get("logger")
 
@@ -193,7 +193,7 @@ def run_train(cfg: DictConfig) -> int:
             action_dim=action_dim,
             dataset=str(dataset),
             rng=get_rng_state(),
-            sampler=buffer.sampler.state_dict(),
+            sampler_rng=_buffer_rng(buffer),
             history=history,
             evals=evals,
             best=best,
@@ -273,6 +273,17 @@ def run_train(cfg: DictConfig) -> int:
     if world > 1:
         dist.barrier()
     return 0
+
+
+def _buffer_rng(buffer) -> torch.Tensor:
+    # TorchRL exposes set_rng but no getter; its own state_dict reads the same attribute.
+    return buffer._rng.get_state().clone()
+
+
+def _set_buffer_rng(buffer, state: torch.Tensor) -> None:
+    generator = torch.Generator()
+    generator.set_state(state)
+    buffer.set_rng(generator)
 
 
 def _headline(result: dict[str, Any]) -> dict[str, Any]:

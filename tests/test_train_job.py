@@ -1,0 +1,107 @@
+"""``l1flow-rl train`` end to end on the real ManiSkill simulator, with tiny budgets."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
+
+from l1flow_rl.cli import main  # noqa: E402
+from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_checkpoint  # noqa: E402
+from l1flow_rl.workspace.trainer import Trainer  # noqa: E402
+
+pytestmark = pytest.mark.maniskill
+
+TINY = [
+    "demos.num=3",
+    "train.steps=40",
+    "train.checkpoint_every=20",
+    "train.batch_size=32",
+    "train.log_every=5",
+    "train.warmup_steps=5",
+    "train.lr=1e-3",
+    "policy.down_dims=[16,32]",
+    "policy.timestep_embed_dim=16",
+    "eval.episodes=2",
+    "eval.num_envs=1",
+    "task.max_episode_steps=30",
+]
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("demos")
+
+
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory, data_dir):
+    run_dir = tmp_path_factory.mktemp("full") / "run"
+    assert main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY]) == 0
+    return run_dir
+
+
+def _tensors_equal(a: dict, b: dict) -> list[str]:
+    return [k for k in a if not torch.equal(a[k], b[k])]
+
+
+def test_train_writes_checkpoints_eval_and_plots(full_run):
+    result = json.loads((full_run / "eval.json").read_text())
+    assert result["episodes"] == 2
+    assert 0.0 <= result["success_at_end"] <= result["success_once"] <= 1.0
+    for name in ("latest.pt", "best.pt"):
+        raw = torch.load(full_run / "checkpoints" / name, weights_only=True)
+        assert raw["step"] == 40
+        assert {"model", "ema", "optimizer", "scheduler", "config", "rng", "sampler_rng"} <= set(raw)
+    assert (full_run / "loss.png").stat().st_size > 1000
+    assert (full_run / "success.png").stat().st_size > 1000
+    assert (full_run / "config.yaml").is_file()
+    assert list((full_run / "logs").rglob("*.csv")), "the CSV logger wrote nothing"
+
+
+def test_train_lowers_the_loss(full_run):
+    history = load_checkpoint(full_run / "checkpoints" / "latest.pt")["history"]
+    assert history["step"][-1] == 40
+    losses = history["loss"]
+    assert sum(losses[-3:]) / 3 < losses[0]
+
+
+def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(tmp_path, data_dir, full_run, monkeypatch):
+    run_dir = tmp_path / "run"
+    real_step = Trainer.train_step
+
+    def crashing_step(self, batch):
+        if self.step == 30:
+            raise RuntimeError("simulated crash at step 30")
+        return real_step(self, batch)
+
+    monkeypatch.setattr(Trainer, "train_step", crashing_step)
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY])
+    assert load_checkpoint(run_dir / "checkpoints")["step"] == 20  # the last good one, intact
+    monkeypatch.setattr(Trainer, "train_step", real_step)
+
+    with pytest.raises(FileExistsError, match="resume=true"):
+        main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY])
+    with pytest.raises(CheckpointMismatchError, match="policy.down_dims"):
+        main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY, "resume=true", "policy.down_dims=[16,64]"])
+
+    assert main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY, "resume=true"]) == 0
+    resumed = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    straight = load_checkpoint(full_run / "checkpoints" / "latest.pt")
+    assert resumed["step"] == straight["step"] == 40
+    assert _tensors_equal(resumed["model"], straight["model"]) == []
+    assert _tensors_equal(resumed["ema"], straight["ema"]) == []
+    assert resumed["history"]["loss"] == straight["history"]["loss"]
+
+
+def test_eval_command_on_a_checkpoint(tmp_path, full_run):
+    out = tmp_path / "eval"
+    ckpt = full_run / "checkpoints" / "best.pt"
+    assert main(["eval", f"checkpoint={ckpt}", "eval.episodes=2", "eval.num_envs=1", f"run_dir={out}",
+                 "task.max_episode_steps=30"]) == 0
+    result = json.loads((out / "eval.json").read_text())
+    assert result["episodes"] == 2
+    assert set(result) >= {"success_once", "success_at_end"}
