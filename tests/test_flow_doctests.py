@@ -1,0 +1,25 @@
+"""The runnable examples in the core modules' docstrings."""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+
+import pytest
+
+MODULES = [
+    "l1flow_rl.actor",
+    "l1flow_rl.ema",
+    "l1flow_rl.flow.time",
+    "l1flow_rl.objectives.diffusion",
+    "l1flow_rl.objectives.flow_matching",
+    "l1flow_rl.objectives.l1flow",
+    "l1flow_rl.objectives.regression",
+]
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_docstring_examples_run(name):
+    result = doctest.testmod(importlib.import_module(name), optionflags=doctest.ELLIPSIS)
+    assert result.attempted > 0, f"{name} has no docstring example"
+    assert result.failed == 0
