@@ -97,7 +97,7 @@ def test_cache_is_reused_and_generation_resumes(pushcube, monkeypatch):
     (root / ".work" / "plan_000999").mkdir(parents=True)
     (root / ".work" / "plan_000999" / "plan.h5").write_bytes(b"half")
     (root / "planned" / f"seeds_{next_seed:06d}-{next_seed + 5:06d}.h5").write_bytes(b"half")
-    generator = maniskill_demos._Generator(task, data_dir, 0, 50, 120)
+    generator = maniskill_demos._Generator(task, data_dir, attempt_timeout=120)
     usable = sum(ok for _, ok, _ in generator.outcomes(chain))
     more = ensure_demos(task, usable + 1, data_dir, progress=False)
     new_chain = maniskill_demos._planned_chain(root / "planned", 0)

@@ -29,6 +29,7 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +44,8 @@ __all__ = ["DemoGenerationError", "dataset_path", "ensure_demos", "run_demos"]
 _BATCH = re.compile(r"seeds_(\d+)-(\d+)\.attempts\.json$")
 #: Most seeds per worker process: big enough to amortise its ~10 s start, small enough to resume cheaply.
 MAX_BATCH = 25
+#: Fewest seeds worth a worker of their own (its start costs about as much as 10 PushCube demos).
+MIN_BATCH = 8
 #: Seconds a worker may take to start (imports, Vulkan) before its first seed.
 WORKER_START_S = 240
 
@@ -142,11 +145,12 @@ def _replayed_seeds(mode_dir: Path, batch: _Batch) -> list[int] | None:
 class _Worker:
     """One worker process; reads its attempt lines as they come, ends it at the deadline."""
 
-    def __init__(self, args: list[str], log: Path, deadline_s: float, bar) -> None:
+    def __init__(self, args: list[str], log: Path, deadline_s: float, bar, stop: threading.Event) -> None:
         self.attempts: list[dict] = []
-        self.ready = False
+        self.ready = self.stopped = False
         self.log = log
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        # one simulator per process gains nothing from intra-op threads; parallel workers would contend
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
         with open(log, "w") as log_file:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "l1flow_rl.data._plan_worker", *args],
@@ -165,6 +169,10 @@ class _Worker:
                 try:
                     line = lines.get(timeout=max(0.0, min(1.0, deadline - time.monotonic())))
                 except queue.Empty:
+                    if stop.is_set():  # the run is being interrupted
+                        self.stopped = True
+                        self._kill()
+                        break
                     if time.monotonic() >= deadline:
                         self.timed_out = True
                         self._kill()
@@ -200,19 +208,15 @@ class _Worker:
 
 
 class _Generator:
-    def __init__(
-        self, task, data_dir, seed: int, max_consecutive_failures: int, attempt_timeout: int
-    ) -> None:
-        self.task, self.seed, self.max_failures, self.attempt_timeout = (
-            task,
-            seed,
-            max_consecutive_failures,
-            attempt_timeout,
-        )
+    """Runs workers for one task and commits what they make into the cache."""
+
+    def __init__(self, task, data_dir, attempt_timeout: int) -> None:
+        self.task, self.attempt_timeout = task, attempt_timeout
         self.root = Path(data_dir) / "maniskill" / task.env_id
         self.planned = self.root / "planned"
         self.mode_dir = self.root / _mode_name(task)
         self.tmp_root = self.root / ".work"
+        self.stop = threading.Event()
 
     def _worker_args(self, work: Path) -> list[str]:
         t = self.task
@@ -239,7 +243,10 @@ class _Generator:
         work.mkdir(parents=True)
         args = [*self._worker_args(work), "--first-seed", str(first), "--num-seeds", str(count)]
         # per-attempt limit plus a replay allowance of 60 s per episode (rgb replays run ~20 steps/s)
-        worker = _Worker(args, work / "worker.log", WORKER_START_S + count * (self.attempt_timeout + 60), bar)
+        deadline = WORKER_START_S + count * (self.attempt_timeout + 60)
+        worker = _Worker(args, work / "worker.log", deadline, bar, self.stop)
+        if worker.stopped:
+            return  # interrupted: nothing is committed, the seeds stay unplanned
         if worker.returncode == NO_SOLUTION_EXIT:
             raise DemoGenerationError(f"{self.task.env_id}: {worker.log_tail(3)}")
         planned_all = len(worker.attempts) == count
@@ -247,14 +254,20 @@ class _Generator:
         if not planned_all and not worker.ready:
             raise self._fail(f"planning seeds {first}.. failed before the first attempt", worker)
         if not planned_all:
-            # the worker died on a seed (a planner crash): that seed failed, the batch's successes are lost
+            # The worker died on a seed (a planner crash): that seed failed, the batch's successes are
+            # lost and its later seeds are skipped. The batch keeps its full range so that batches
+            # planned beside it still join the chain without a gap.
             crashed = first + len(worker.attempts)
             attempts = [{**a, "success": False} for a in worker.attempts]
             attempts.append(
                 {"seed": crashed, "success": False, "seconds": None, "error": "the worker crashed"}
             )
+            attempts += [
+                {"seed": s, "success": False, "seconds": None, "error": None, "skipped": True}
+                for s in range(crashed + 1, first + count)
+            ]
             _write_json_atomic(
-                self.planned / f"{_Batch(first, crashed, attempts).stem}.attempts.json", attempts
+                self.planned / f"{_Batch(first, first + count - 1, attempts).stem}.attempts.json", attempts
             )
             return
         batch = _Batch(first, first + count - 1, worker.attempts)
@@ -281,9 +294,10 @@ class _Generator:
         work.mkdir(parents=True)
         for suffix in (".h5", ".json"):
             shutil.copyfile(self.planned / f"{batch.stem}{suffix}", work / f"plan{suffix}")
-        worker = _Worker(
-            self._worker_args(work), work / "worker.log", WORKER_START_S + 60 * len(batch.planned_seeds), None
-        )
+        deadline = WORKER_START_S + 60 * len(batch.planned_seeds)
+        worker = _Worker(self._worker_args(work), work / "worker.log", deadline, None, self.stop)
+        if worker.stopped:
+            return
         if worker.returncode != 0:
             raise self._fail(f"replaying {batch.stem} into {_mode_name(self.task)}", worker)
         self._commit_replay(work, batch)
@@ -295,12 +309,13 @@ class _Generator:
         for batch in chain:
             replayed = set(_replayed_seeds(self.mode_dir, batch) or [])
             for a in batch.attempts:
+                if a.get("skipped"):
+                    continue
                 ok = a["seed"] in replayed
-                error = (
-                    a["error"]
-                    if not a["success"]
-                    else (None if ok else "the replay into the target mode failed")
-                )
+                if a["success"]:
+                    error = None if ok else "the replay into the target mode failed"
+                else:
+                    error = a["error"]
                 out.append((a["seed"], ok, error))
         return out
 
@@ -328,13 +343,18 @@ class _Generator:
         os.replace(tmp_h5, target)  # the h5 appears last: its presence means the pair is complete
 
 
-def _next_batch_size(need: int, outcomes: list[tuple[int, bool, str | None]], failures_left: int) -> int:
+def _batch_sizes(
+    need: int, outcomes: list[tuple[int, bool, str | None]], failures_left: int, workers: int
+) -> list[int]:
+    """Seeds for the next round, split into up to ``workers`` batches of at least MIN_BATCH seeds."""
     good = sum(ok for _, ok, _ in outcomes)
     # success-rate estimate with a prior of 0.9 worth 2 seeds: most solutions succeed (PushCube 0.95)
-    # and each extra seed costs a replay, while low rates correct themselves after one batch
+    # and each extra seed costs a replay, while low rates correct themselves after one round
     rate = (good + 1.8) / (len(outcomes) + 2)
-    wanted = math.ceil(need / max(rate, 0.05) * 1.1)
-    return max(1, min(wanted, MAX_BATCH, failures_left))
+    total = max(1, min(math.ceil(need / max(rate, 0.05) * 1.1), failures_left, MAX_BATCH * workers))
+    parts = max(1, min(workers, total // MIN_BATCH))
+    base, extra = divmod(total, parts)
+    return [base + (i < extra) for i in range(parts)]
 
 
 def ensure_demos(
@@ -345,6 +365,7 @@ def ensure_demos(
     max_consecutive_failures: int = 50,
     *,
     attempt_timeout: int = 120,
+    workers: int | None = None,
     progress: bool = True,
 ) -> Path:
     """Path of a ManiSkill file with ``num`` successful demonstrations of ``task``, generating only what
@@ -358,6 +379,8 @@ def ensure_demos(
         max_consecutive_failures: stop with :class:`DemoGenerationError` after this many failed
             seeds in a row.
         attempt_timeout: seconds one planner attempt may take before it counts as failed.
+        workers: worker processes run side by side (default: the CPU count, at most 4); a round of
+            fewer than 2 * MIN_BATCH seeds uses one.
         progress: show a tqdm bar of usable demonstrations.
 
     Example:
@@ -365,10 +388,11 @@ def ensure_demos(
         >>> path = ensure_demos(load_task_config("maniskill_pushcube"), 3, "data")  # doctest: +SKIP
     """
     _check_task(task, num, max_consecutive_failures)
+    workers = workers or max(1, min(4, os.cpu_count() or 1))
     target = dataset_path(task, num, data_dir, seed)
     if target.is_file() and target.with_suffix(".json").is_file():
         return target
-    gen = _Generator(task, data_dir, seed, max_consecutive_failures, attempt_timeout)
+    gen = _Generator(task, data_dir, attempt_timeout)
     from tqdm import tqdm
 
     with (
@@ -401,16 +425,21 @@ def ensure_demos(
             if streak >= max_consecutive_failures:
                 first_failed, last_error = outcomes[-streak][0], outcomes[-1][2]
                 raise DemoGenerationError(
-                    f"{task.env_id}: {streak} seeds in a row failed (seeds "
-                    f"{first_failed}..{outcomes[-1][0]}, "
-                    f"max_consecutive_failures={max_consecutive_failures}); {have}/{num} demonstrations "
-                    "made. "
-                    f"Last error: {last_error}"
+                    f"{task.env_id}: {streak} seeds in a row failed (seeds {first_failed}.."
+                    f"{outcomes[-1][0]}, max_consecutive_failures={max_consecutive_failures}); "
+                    f"{have}/{num} demonstrations made. Last error: {last_error}"
                 )
             first = chain[-1].last + 1 if chain else seed
-            gen.plan_batch(
-                first, _next_batch_size(num - have, outcomes, max_consecutive_failures - streak), bar
-            )
+            sizes = _batch_sizes(num - have, outcomes, max_consecutive_failures - streak, workers)
+            starts = [first + sum(sizes[:i]) for i in range(len(sizes))]
+            with ThreadPoolExecutor(len(sizes)) as pool:  # each thread waits on its own worker process
+                jobs = [pool.submit(gen.plan_batch, s, k, bar) for s, k in zip(starts, sizes)]
+                try:
+                    for job in jobs:
+                        job.result()
+                except BaseException:
+                    gen.stop.set()  # end the other workers too; their batches are not committed
+                    raise
 
 
 def run_demos(cfg) -> int:
