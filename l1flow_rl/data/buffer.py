@@ -62,9 +62,8 @@ def _open_storage(
         )
         if not same:
             raise EpisodeDataError(
-                f"{directory}: holds a stored copy of other episodes ({len(storage)} steps) than the "
-                f"{n} steps given; "
-                "use another storage_dir or delete this one"
+                f"{directory}: holds a stored copy of other episodes ({len(storage)} steps) than the {n} "
+                "steps given; use another storage_dir or delete this one"
             )
         return storage
     if directory.exists() and any(directory.iterdir()):

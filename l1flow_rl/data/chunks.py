@@ -80,8 +80,7 @@ class ChunkLayout:
         ):
             raise ValueError(
                 "max_pad_after must be in [0, pred_horizon - obs_horizon = "
-                f"{self.pred_horizon - self.obs_horizon}] "
-                f"or None, got {self.max_pad_after}"
+                f"{self.pred_horizon - self.obs_horizon}] or None, got {self.max_pad_after}"
             )
         object.__setattr__(self, "gripper_dims", tuple(int(d) for d in self.gripper_dims))
 
@@ -137,8 +136,8 @@ class ChunkWindowSampler(Sampler):
         self._cache: tuple[Any, Tensor, Tensor, Tensor] | None = None
 
     def _episode_table(self, storage: Storage) -> tuple[Tensor, Tensor, Tensor]:
-        """(start row, end row) per stored row and the valid anchor rows; recomputed when the storage "
-        "changes."""
+        """(start row, end row) per stored row, and the valid anchor rows; recomputed when the storage
+        changes."""
         key = (len(storage), int(getattr(storage, "_mutation_revision", 0)))
         if self._cache is None or self._cache[0] != key:
             data = storage.get(slice(None))
@@ -160,13 +159,11 @@ class ChunkWindowSampler(Sampler):
             first = int(starts[per_episode == 0][0])
             length = int((start == first).sum())
             raise EpisodeDataError(
-                f"{where(self.layout.source, int(episode[first]), 'action')}: {length} steps is too "
-                "short for "
-                f"pred_horizon={self.layout.pred_horizon} with obs_horizon={self.layout.obs_horizon} "
-                "and at most "
-                f"max_pad_after={self.layout.max_pad_after} padded steps; it needs at least "
-                f"{self.layout.pred_horizon - self.layout.obs_horizon + 1 - self.layout.max_pad_after} steps "
-                "(raise max_pad_after, or drop the episode from the data)"
+                f"{where(self.layout.source, int(episode[first]), 'action')}: {length} steps is too short "
+                f"for pred_horizon={self.layout.pred_horizon} with obs_horizon={self.layout.obs_horizon} "
+                f"and at most max_pad_after={self.layout.max_pad_after} padded steps; it needs at least "
+                f"{self.layout.pred_horizon - self.layout.obs_horizon + 1 - self.layout.max_pad_after} "
+                "steps (raise max_pad_after, or drop the episode from the data)"
             )
 
     def validate(self, storage: Storage) -> None:

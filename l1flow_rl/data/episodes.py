@@ -107,9 +107,8 @@ def to_uint8_image(
     rounded = scaled.round()
     if scaled.min() < 0 or scaled.max() > 255 or (scaled - rounded).abs().max() > 0.02:
         raise EpisodeDataError(
-            f"{where(source, episode, key)}: float images must hold values in [0, {float_max:g}] on a "
-            "1/255 grid; "
-            f"got values in [{float(x.min())}, {float(x.max())}]"
+            f"{where(source, episode, key)}: float images must hold values in [0, {float_max:g}] on a 1/255 "
+            f"grid; got values in [{float(x.min())}, {float(x.max())}]"
         )
     return rounded.to(torch.uint8).contiguous()
 
@@ -172,9 +171,8 @@ def episode_bounds(episode: Tensor, source: object = "episodes") -> tuple[Tensor
     uniq, counts = torch.unique(run_ids, return_counts=True)
     if (counts > 1).any():
         raise EpisodeDataError(
-            f"{where(source, int(uniq[counts > 1][0]), 'episode')}: the episode's steps are not "
-            "contiguous (the id "
-            "appears in more than one run of rows); store each episode's steps together"
+            f"{where(source, int(uniq[counts > 1][0]), 'episode')}: the episode's steps are not contiguous "
+            "(the id appears in more than one run of rows); store each episode's steps together"
         )
     run_ends = torch.cat([run_starts[1:], torch.tensor([n])])
     run_of_row = torch.cumsum(change.long(), 0) - 1

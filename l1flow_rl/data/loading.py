@@ -54,8 +54,7 @@ def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
         else:
             raise EpisodeDataError(
                 f"{path}: a directory that is neither a zarr store nor a LeRobot dataset; supported: "
-                "ManiSkill "
-                ".h5+.json, robomimic .hdf5, Diffusion Policy .zarr, LeRobot (TorchRL copy)"
+                "ManiSkill .h5+.json, robomimic .hdf5, Diffusion Policy .zarr, LeRobot (TorchRL copy)"
             )
     elif h5py.is_hdf5(path):
         with open_h5(path) as f:
@@ -63,8 +62,7 @@ def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
     else:
         raise EpisodeDataError(
             f"{path}: not a supported demonstration file (not HDF5; truncated?); supported: ManiSkill "
-            ".h5+.json, "
-            "robomimic .hdf5, Diffusion Policy .zarr directory, LeRobot directory (TorchRL copy)"
+            ".h5+.json, robomimic .hdf5, Diffusion Policy .zarr directory, LeRobot directory (TorchRL copy)"
         )
     try:
         return reader(path, **options)
@@ -105,8 +103,7 @@ def _stack(reader: EpisodeFile, ids: list[int], parts: list[TensorDict]) -> Tens
             if set(part.keys(True, True)) != set(first.keys(True, True)):
                 raise EpisodeDataError(
                     f"{where(reader.path, e)}: entries {sorted(map(str, part.keys(True, True)))} differ "
-                    "from episode "
-                    f"{ids[0]}'s {sorted(map(str, first.keys(True, True)))}"
+                    f"from episode {ids[0]}'s {sorted(map(str, first.keys(True, True)))}"
                 ) from err
         raise EpisodeDataError(f"{reader.path}: episodes do not share shapes: {err}") from err
 
@@ -131,9 +128,8 @@ def _load_memmap(reader: EpisodeFile, options: dict, target: Path, progress: boo
         if stored["fingerprint"] != fingerprint:
             raise EpisodeDataError(
                 f"{target}: holds a stored copy of {stored['fingerprint']['source']} (or of an older "
-                "version of it, "
-                f"or with other options), not of {reader.path} as now; use another memmap_dir or delete "
-                "this one"
+                f"version of it, or with other options), not of {reader.path} as now; use another "
+                "memmap_dir or delete this one"
             )
         return TensorDict.load_memmap(target)
     if target.exists():

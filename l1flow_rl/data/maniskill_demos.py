@@ -425,9 +425,10 @@ def ensure_demos(
             if streak >= max_consecutive_failures:
                 first_failed, last_error = outcomes[-streak][0], outcomes[-1][2]
                 raise DemoGenerationError(
-                    f"{task.env_id}: {streak} seeds in a row failed (seeds {first_failed}.."
-                    f"{outcomes[-1][0]}, max_consecutive_failures={max_consecutive_failures}); "
-                    f"{have}/{num} demonstrations made. Last error: {last_error}"
+                    f"{task.env_id}: {streak} seeds in a row failed (seeds "
+                    f"{first_failed}..{outcomes[-1][0]}, "
+                    f"max_consecutive_failures={max_consecutive_failures}); {have}/{num} demonstrations "
+                    f"made. Last error: {last_error}"
                 )
             first = chain[-1].last + 1 if chain else seed
             sizes = _batch_sizes(num - have, outcomes, max_consecutive_failures - streak, workers)

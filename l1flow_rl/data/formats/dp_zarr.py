@@ -80,16 +80,15 @@ class DiffusionPolicyZarr(EpisodeFile):
         empty = (ends <= starts).nonzero()
         if empty.numel():
             raise EpisodeDataError(
-                f"{where(path, int(empty[0]), 'meta/episode_ends')}: the episode has no steps (ends "
-                "must increase)"
+                f"{where(path, int(empty[0]), 'meta/episode_ends')}: the episode has no steps (ends must "
+                "increase)"
             )
         for key in [*self.state_keys, action_key, *([image_key] if image_key else [])]:
             rows = self.data[key].shape[0]
             if rows != int(ends[-1]):
                 raise EpisodeDataError(
-                    f"{where(path, ends.numel() - 1, f'data/{key}')}: has {rows} rows but "
-                    "meta/episode_ends ends at "
-                    f"{int(ends[-1])} (truncated or mismatched arrays)"
+                    f"{where(path, ends.numel() - 1, f'data/{key}')}: has {rows} rows but meta/episode_ends "
+                    f"ends at {int(ends[-1])} (truncated or mismatched arrays)"
                 )
         self.starts, self.ends = starts.tolist(), ends.tolist()
 

@@ -50,9 +50,10 @@ class LeRobotDirectory(EpisodeFile):
         super().__init__(path)
         if is_raw_lerobot(path):
             raise EpisodeDataError(
-                f"{path}: a raw LeRobot dataset (parquet files). Reading parquet needs pyarrow, which is not "
-                "installed here; convert it once with torchrl's LeRobotExperienceReplay(repo_id, root=ROOT, "
-                "download=True) on a machine with huggingface_hub and datasets, then load ROOT/<repo_id>"
+                f"{path}: a raw LeRobot dataset (parquet files). Reading parquet needs pyarrow, which is "
+                "not installed here; convert it once with torchrl's LeRobotExperienceReplay(repo_id, "
+                "root=ROOT, download=True) on a machine with huggingface_hub and datasets, then load "
+                "ROOT/<repo_id>"
             )
         from torchrl.data.datasets.lerobot import LeRobotExperienceReplay
 

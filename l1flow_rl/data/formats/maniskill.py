@@ -57,8 +57,7 @@ class ManiSkillFile(EpisodeFile):
         except (json.JSONDecodeError, KeyError, TypeError) as err:
             raise EpisodeDataError(
                 f"{json_path}: not a ManiSkill trajectory metadata file (truncated or not JSON with "
-                "'env_info' "
-                f"and 'episodes'): {err!r}"
+                f"'env_info' and 'episodes'): {err!r}"
             ) from err
         env_kwargs = self.env_info.get("env_kwargs", {})
         self.control_mode = env_kwargs.get("control_mode")
@@ -76,9 +75,8 @@ class ManiSkillFile(EpisodeFile):
             name = f"traj_{ep['episode_id']}"
             if name not in self.h5:
                 raise EpisodeDataError(
-                    f"{where(path, ep['episode_id'], name)}: listed in {json_path.name} but missing "
-                    "from the file "
-                    "(truncated or mismatched pair)"
+                    f"{where(path, ep['episode_id'], name)}: listed in {json_path.name} but missing from "
+                    "the file (truncated or mismatched pair)"
                 )
 
     @property
