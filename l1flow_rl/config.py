@@ -102,7 +102,7 @@ class TrainConfig:
     log_every: int = 50
     eval_every: int = 0  # 0: evaluate only at the end
     logger: str = "csv"  # csv | tensorboard | wandb
-    prefetch: int = 2
+    prefetch: int = 0  # batches sampled ahead by threads; 0 keeps resume bit-exact
 
 
 @dataclass
