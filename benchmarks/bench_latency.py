@@ -145,12 +145,15 @@ def main() -> int:
     device = torch.device(args.device)
     torch.manual_seed(0)
 
+    load_before = os.getloadavg()[0]
     train = interleaved(training_steps(device), args.train_rounds, device)
     infer = interleaved(inference_calls(device), args.infer_rounds, device)
     ref = infer["l1flow_2nfe"]
     n_params = sum(p.numel() for p in build_actor("l1flow_2nfe", device).parameters())
     figures = {
         "machine": f"{platform.machine()} {os.cpu_count()} cores, torch threads {torch.get_num_threads()}",
+        # other processes' load: with load above the core count, wall time exceeds CPU time
+        "load_average_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)],
         "device": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
         "network": {
             "obs_dim": OBS_DIM,

@@ -118,7 +118,7 @@ class EvalConfig:
 class ToyConfig:
     """The multi-modality demonstration (``l1flow-rl toy``); see :mod:`l1flow_rl.toy`."""
 
-    steps: int = 600  # ~1.5 min for the three methods on 2 shared CPU cores
+    steps: int = 600  # about 90 s of CPU time for the three methods (the toy runs single-threaded)
     batch_size: int = 128
     lr: float = 1e-3
     samples: int = 512

@@ -206,7 +206,7 @@ def _train_and_evaluate(toy: DictConfig) -> tuple[dict[str, Any], dict[str, tupl
     samples: dict[str, tuple[str, Tensor]] = {}
     for name in toy.methods:
         method = TOY_METHODS[name]
-        with tqdm(total=toy.steps, desc=f"toy {name}", leave=False) as bar:
+        with tqdm(total=toy.steps, desc=f"toy {name}", leave=False, mininterval=1.0) as bar:
             actor, stats = train_toy_method(
                 method,
                 modes,
