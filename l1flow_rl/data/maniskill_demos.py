@@ -460,6 +460,11 @@ def run_demos(cfg) -> int:
     except DemoGenerationError as err:
         print(f"l1flow-rl demos: {err}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print(
+            "l1flow-rl demos: interrupted; finished batches are kept, run it again to resume", file=sys.stderr
+        )
+        return 130
     print(
         f"{cfg.demos.num} demonstrations of {task.env_id} ready in {time.perf_counter() - start:.1f} s",
         file=sys.stderr,
