@@ -134,7 +134,9 @@ def run_train(cfg: DictConfig) -> int:
         dist.broadcast_object_list(paths, src=0)
     dataset = Path(paths[0])
     demo_seconds = time.perf_counter() - t_start
-    episodes = load_episodes(dataset)
+    # Image datasets stay memory-mapped on disk next to the demonstrations instead of in RAM.
+    memmap_dir = dataset.with_suffix(".memmap") if cfg.task.obs_mode != "state" else None
+    episodes = load_episodes(dataset, control_mode=cfg.task.control_mode, memmap_dir=memmap_dir)
     pcfg = cfg.policy
     buffer = make_chunk_buffer(
         episodes,
