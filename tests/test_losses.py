@@ -208,8 +208,8 @@ def test_padding_mask_removes_padded_steps(loss_cls):
     actor = actor_for(loss_cls)
     key = LOSSES[loss_cls][1]
     td = batch(pad_from=11)
-    mean = seeded(loss_cls(actor), td)[key]
-    none = seeded(loss_cls(actor, reduction="none"), td)[key]
+    mean = seeded(loss_cls(actor, mask_padding=True), td)[key]
+    none = seeded(loss_cls(actor, reduction="none", mask_padding=True), td)[key]
     assert (none[:, 11:] == 0).all() and (none[:, :11] > 0).any()
     torch.testing.assert_close(mean, none.sum() / (B * 11 * A))
     # No gradient flows back from the network's output at padded steps.
@@ -220,7 +220,7 @@ def test_padding_mask_removes_padded_steps(loss_cls):
         outputs.append(out)
 
     actor.policy.net.register_forward_hook(keep_output)
-    seeded(loss_cls(actor), td)[key].backward()
+    seeded(loss_cls(actor, mask_padding=True), td)[key].backward()
     grad = outputs[-1].grad
     assert (grad[:, 11:] == 0).all() and (grad[:, :11] != 0).any()
 
@@ -236,12 +236,13 @@ def test_changing_padded_targets_does_not_change_the_loss(loss_cls):
     td = batch(pad_from=11)
     junk = td.clone()
     junk["action_chunk"][:, 11:] = 1e3
-    out, out_junk = seeded(loss_cls(actor), td), seeded(loss_cls(actor), junk)
+    masked = loss_cls(actor, mask_padding=True)
+    out, out_junk = seeded(masked, td), seeded(masked, junk)
     torch.testing.assert_close(out_junk[key], out[key])
-    for diagnostic in loss_cls(actor).out_keys[1:]:
+    for diagnostic in masked.out_keys[1:]:
         torch.testing.assert_close(out_junk[diagnostic], out[diagnostic])
-    # without the mask those steps count
-    assert seeded(loss_cls(actor, mask_padding=False), junk)[key] > 10 * out[key]
+    # by default (as Diffusion Policy and ManiSkill's baseline train) padded steps count
+    assert seeded(loss_cls(actor), junk)[key] > 10 * out[key]
 
 
 def test_regression_loss_ignores_padded_targets_with_the_real_network():
@@ -250,7 +251,8 @@ def test_regression_loss_ignores_padded_targets_with_the_real_network():
     junk = td.clone()
     junk["action_chunk"][:, 5:] = -1e3
     torch.testing.assert_close(
-        RegressionLoss(actor)(junk)["loss_regression"], RegressionLoss(actor)(td)["loss_regression"]
+        RegressionLoss(actor, mask_padding=True)(junk)["loss_regression"],
+        RegressionLoss(actor, mask_padding=True)(td)["loss_regression"],
     )
 
 

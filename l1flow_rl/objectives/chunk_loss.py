@@ -22,6 +22,10 @@ class ChunkLossBase(LossModule):
 
     Subclasses set ``loss_name``, ``prediction`` (the sampler target they train for) and implement
     :meth:`_elementwise_loss`.
+
+    ``mask_padding=False`` (the default) trains on padded steps too, as Diffusion Policy and
+    ManiSkill's baseline do, so the policy learns to hold still past an episode's end;
+    ``mask_padding=True`` leaves steps flagged by ``action_is_pad`` out of the loss.
     """
 
     @dataclass
@@ -34,7 +38,8 @@ class ChunkLossBase(LossModule):
             action_chunk (NestedKey): demonstrated chunk, [*B, H, A], in environment units.
                 Defaults to ``"action_chunk"``.
             action_is_pad (NestedKey): optional [*B, H] bool, True where the chunk step is edge
-                padding; those steps are left out of the loss. Defaults to ``"action_is_pad"``.
+                padding. Its shape is always checked; with ``mask_padding=True`` those steps are
+                left out of the loss. Defaults to ``"action_is_pad"``.
         """
 
         observation: NestedKey = "observation"
@@ -52,7 +57,7 @@ class ChunkLossBase(LossModule):
     sampler_hint: str = ""
 
     def __init__(
-        self, actor_network: TensorDictModule, *, reduction: str = "mean", mask_padding: bool = True
+        self, actor_network: TensorDictModule, *, reduction: str = "mean", mask_padding: bool = False
     ):
         if reduction not in ("mean", "sum", "none"):
             raise ValueError(f"reduction must be 'mean', 'sum' or 'none', got {reduction!r}")
@@ -143,13 +148,13 @@ class ChunkLossBase(LossModule):
             )
         n = obs.shape[0]
         valid = None
-        if self.mask_padding:
-            is_pad = td.get(keys.action_is_pad, default=None)
-            if is_pad is not None:
-                if tuple(is_pad.shape) != (*batch, H):
-                    raise ValueError(
-                        f"{keys.action_is_pad!r} must have shape {[*batch, H]}, got {tuple(is_pad.shape)}"
-                    )
+        is_pad = td.get(keys.action_is_pad, default=None)
+        if is_pad is not None:
+            if tuple(is_pad.shape) != (*batch, H):
+                raise ValueError(
+                    f"{keys.action_is_pad!r} must have shape {[*batch, H]}, got {tuple(is_pad.shape)}"
+                )
+            if self.mask_padding:
                 valid = ~is_pad.reshape(n, H).bool()
         x1 = policy.action_normalizer.normalize(action.reshape(n, H, A).to(policy.dtype))
         return obs, x1, valid, batch

@@ -34,7 +34,7 @@ class DiffusionLoss(ChunkLossBase):
     diagnostic_keys = ()
 
     def __init__(
-        self, actor_network: TensorDictModule, *, reduction: str = "mean", mask_padding: bool = True
+        self, actor_network: TensorDictModule, *, reduction: str = "mean", mask_padding: bool = False
     ):
         super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
         self.schedule = self.policy.sampler.schedule  # type: ignore[attr-defined]

@@ -44,7 +44,7 @@ class FlowMatchingLoss(ChunkLossBase):
         *,
         timesteps: str | TimestepDistribution = "beta",
         reduction: str = "mean",
-        mask_padding: bool = True,
+        mask_padding: bool = False,
     ) -> None:
         super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
         self.timesteps = make_timesteps(timesteps)

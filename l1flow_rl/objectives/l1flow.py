@@ -61,7 +61,7 @@ class L1FlowLoss(ChunkLossBase):
         loss_space: LossSpace = "x",
         t_first: float | None = None,
         reduction: str = "mean",
-        mask_padding: bool = True,
+        mask_padding: bool = False,
     ) -> None:
         super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
         if loss_type not in ("l1", "mse"):

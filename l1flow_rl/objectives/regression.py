@@ -41,7 +41,7 @@ class RegressionLoss(ChunkLossBase):
         *,
         loss_type: LossType = "l1",
         reduction: str = "mean",
-        mask_padding: bool = True,
+        mask_padding: bool = False,
     ) -> None:
         super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
         if loss_type not in ("l1", "mse"):
