@@ -97,8 +97,10 @@ def make_env(
 
     Args:
         task: a task config name (a file in ``configs/task``) or a :class:`TaskConfig`.
-        num_envs: parallel envs. CPU: that many worker processes (one env each, ``ParallelEnv``);
-            CUDA: one ManiSkill physx_cuda scene with that many envs in this process.
+        num_envs: parallel envs. CPU: that many worker processes (one env each, ``ParallelEnv``
+            started through multiprocessing's forkserver, so a script that makes one needs the
+            ``if __name__ == "__main__":`` guard); CUDA: one ManiSkill physx_cuda scene with that
+            many envs in this process.
         device: ``"cpu"``, ``"cuda"``/``"cuda:k"`` or ``"auto"``.
         obs_horizon: To, the number of stacked observations.
         ignore_terminations: ManiSkill's evaluation setting: run every episode to the time limit.

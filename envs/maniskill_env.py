@@ -19,7 +19,7 @@ from torchrl.envs import EnvBase
 
 from l1flow_rl.config import TaskConfig
 
-__all__ = ["ManiSkillEnv"]
+__all__ = ["ManiSkillEnv", "make_gym_env"]
 
 INSTALL_HINT = "ManiSkill is not installed: pip install 'l1flow-rl[maniskill]'"
 
@@ -31,6 +31,33 @@ def _import_maniskill():
     except ImportError as err:
         raise ImportError(INSTALL_HINT) from err
     return gym
+
+
+def make_gym_env(task: TaskConfig, num_envs: int, device: torch.device, *, render: bool = True):
+    """The raw ManiSkill gymnasium env that :class:`ManiSkillEnv` wraps (physx_cpu on the CPU,
+    physx_cuda on ``device``), configured from the task; also the baseline in the benchmarks."""
+    gym = _import_maniskill()
+    kwargs: dict[str, Any] = dict(task.env_kwargs)
+    if task.obs_mode == "rgb":
+        kwargs.setdefault("sensor_configs", {"width": task.image_size, "height": task.image_size})
+    if not torch.cuda.is_available():
+        # No GPU renderer to find: say so, instead of ManiSkill warning on every env it makes.
+        kwargs.setdefault("render_backend", "cpu")
+    if device.type == "cpu":
+        backend = "physx_cpu"
+    else:
+        backend = "physx_cuda" if device.index is None else f"physx_cuda:{device.index}"
+    return gym.make(
+        task.env_id,
+        num_envs=num_envs,
+        obs_mode=task.obs_mode,
+        control_mode=task.control_mode,
+        reward_mode=task.reward_mode,
+        max_episode_steps=task.max_episode_steps,
+        sim_backend=backend,
+        render_mode="rgb_array" if render else None,
+        **kwargs,
+    )
 
 
 class ManiSkillEnv(EnvBase):
@@ -109,25 +136,7 @@ class ManiSkillEnv(EnvBase):
     # -- simulator --------------------------------------------------------------------------------
 
     def _make_sim(self):
-        gym = _import_maniskill()
-        task = self.task
-        kwargs: dict[str, Any] = dict(task.env_kwargs)
-        if task.obs_mode == "rgb":
-            kwargs.setdefault("sensor_configs", {"width": task.image_size, "height": task.image_size})
-        if not torch.cuda.is_available():
-            # No GPU renderer to find: say so, instead of ManiSkill warning on every env it makes.
-            kwargs.setdefault("render_backend", "cpu")
-        return gym.make(
-            task.env_id,
-            num_envs=self._sim_envs,
-            obs_mode=task.obs_mode,
-            control_mode=task.control_mode,
-            reward_mode=task.reward_mode,
-            max_episode_steps=task.max_episode_steps,
-            sim_backend="physx_cpu" if self.device.type == "cpu" else "physx_cuda",
-            render_mode="rgb_array" if self.render_enabled else None,
-            **kwargs,
-        )
+        return make_gym_env(self.task, self._sim_envs, self.device, render=self.render_enabled)
 
     @property
     def sim(self):

@@ -1,0 +1,223 @@
+"""Env steps per second through the TorchRL adapter (make_env) against raw ManiSkill, same task.
+
+Three settings, each measured in this run against its own raw baseline:
+  cpu_1env   one physx_cpu env in this process (raw: the gymnasium env stepped directly);
+  cpu_2proc  two physx_cpu envs in worker processes (adapter: ParallelEnv; raw: gymnasium
+             AsyncVectorEnv over ManiSkill's CPUGymWrapper, autoreset disabled);
+  gpu_<N>env one physx_cuda scene of N envs (skipped, with a note, when CUDA is absent).
+Both sides step the same pre-drawn random actions and reset at the time limit; the adapter runs
+with its history stacking (the env the evaluator uses). Start-up is not timed. Raw and adapter
+blocks alternate (``--rounds``) and the medians are reported, so that load drifting on a shared
+machine hits both alike; this process's CPU time per step is reported too.
+
+    .venv/bin/python benchmarks/bench_env_throughput.py [--steps 600] [--gpu-envs 256 1024] [--obs-mode rgb]
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+from l1flow_rl.envs import make_env
+from l1flow_rl.envs.maniskill_env import make_gym_env
+
+from l1flow_rl.config import TaskConfig, load_task_config
+
+#: a prepared env: step(i) runs pre-drawn action i (resetting at the time limit); close()
+Stepper = tuple[Callable[[int], None], Callable[[], None]]
+
+
+def raw_in_process(task: TaskConfig, device: torch.device, num_envs: int, actions: torch.Tensor) -> Stepper:
+    """Raw ManiSkill in this process: gym step on batched torch actions, full reset at the limit."""
+    env = make_gym_env(task, num_envs, device)
+    env.reset(seed=0)
+    actions = actions.to(device)
+
+    def step(i: int) -> None:
+        _, _, _, truncated, _ = env.step(actions[i])
+        if bool(truncated.any()):  # every env hits the limit at the same step
+            env.reset()
+
+    return step, env.close
+
+
+def _cpu_gym_env(task: TaskConfig):
+    from mani_skill.utils.wrappers.gymnasium import CPUGymWrapper
+
+    return CPUGymWrapper(make_gym_env(task, 1, torch.device("cpu")))
+
+
+def raw_processes(task: TaskConfig, workers: int, actions: torch.Tensor) -> Stepper:
+    """Raw ManiSkill in worker processes: gymnasium's AsyncVectorEnv (ManiSkill's ``SAME_STEP``
+    autoreset breaks on its reset info, so autoreset is off and resets are explicit)."""
+    from gymnasium.vector import AsyncVectorEnv, AutoresetMode
+
+    env = AsyncVectorEnv(
+        [functools.partial(_cpu_gym_env, task)] * workers,
+        context="forkserver",
+        autoreset_mode=AutoresetMode.DISABLED,
+    )
+    env.reset(seed=0)
+    actions = actions.numpy()
+
+    def step(i: int) -> None:
+        _, _, _, truncated, _ = env.step(actions[i])
+        if truncated.any():
+            env.reset()
+
+    return step, env.close
+
+
+def adapter(task: TaskConfig, device: torch.device, num_envs: int, actions: torch.Tensor) -> Stepper:
+    """make_env's TorchRL env, stepped with step_and_maybe_reset (resets each done env)."""
+    env = make_env(task, num_envs=num_envs, device=device)
+    state = {"td": env.reset()}
+    actions = actions.to(env.device)
+
+    def step(i: int) -> None:
+        td = state["td"]
+        td["action"] = actions[i]
+        _, state["td"] = env.step_and_maybe_reset(td)
+
+    return step, env.close
+
+
+def _timed_block(
+    step: Callable[[int], None], first: int, count: int, device: torch.device
+) -> tuple[float, float]:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    wall, cpu = time.perf_counter(), time.process_time()
+    for i in range(first, first + count):
+        step(i)
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    return time.perf_counter() - wall, time.process_time() - cpu
+
+
+def measure(name: str, make_raw, make_adapter, num_envs: int, device: torch.device, args) -> dict:
+    sides = {"raw": make_raw(), "adapter": make_adapter()}
+    if args.threads > 0:  # TorchRL's ParallelEnv resets this process's thread count when it starts
+        torch.set_num_threads(args.threads)
+    block = args.steps // args.rounds
+    rates: dict[str, list[float]] = {side: [] for side in sides}
+    cpu_ms: dict[str, list[float]] = {side: [] for side in sides}
+    try:
+        for step, _ in sides.values():
+            _timed_block(step, 0, args.warmup, device)
+        for r in range(args.rounds):
+            first = args.warmup + r * block
+            for side, (step, _) in sides.items():
+                wall, cpu = _timed_block(step, first, block, device)
+                rates[side].append(num_envs * block / wall)
+                cpu_ms[side].append(cpu / block * 1e3)
+    finally:
+        for _, close in sides.values():
+            close()
+    raw, ours = statistics.median(rates["raw"]), statistics.median(rates["adapter"])
+    row = {
+        "setting": name,
+        "num_envs": num_envs,
+        "raw_steps_per_s": round(raw, 1),
+        "adapter_steps_per_s": round(ours, 1),
+        "adapter_over_raw": round(ours / raw, 3),
+        "main_process_cpu_ms_per_step": {s: round(statistics.median(v), 3) for s, v in cpu_ms.items()},
+        "torch_threads": torch.get_num_threads(),
+    }
+    print(
+        f"{name:>12}: raw {raw:9.1f} steps/s  adapter {ours:9.1f} steps/s  ratio {ours / raw:.3f}  "
+        f"(main-process CPU ms/step raw {row['main_process_cpu_ms_per_step']['raw']:.2f}, "
+        f"adapter {row['main_process_cpu_ms_per_step']['adapter']:.2f})",
+        flush=True,
+    )
+    return row
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", default="maniskill_pushcube")
+    parser.add_argument("--obs-mode", default=None, help="override the task's obs_mode (state | rgb)")
+    parser.add_argument("--steps", type=int, default=600, help="timed steps per env and side, after warm-up")
+    parser.add_argument("--rounds", type=int, default=6, help="alternating raw/adapter blocks")
+    parser.add_argument("--warmup", type=int, default=30)
+    parser.add_argument("--gpu-envs", type=int, nargs="*", default=[256, 1024])
+    parser.add_argument(
+        "--threads", type=int, default=1, help="torch threads here (workers use 1); 0 keeps torch's default"
+    )
+    parser.add_argument("--out", default=None, help="default: benchmarks/results/env_throughput_<obs>.json")
+    args = parser.parse_args()
+    if args.threads > 0:  # on a loaded 2-core machine, 2 OpenMP threads make small tensor ops ~20x slower
+        torch.set_num_threads(args.threads)
+    task = load_task_config(args.task, **({"obs_mode": args.obs_mode} if args.obs_mode else {}))
+    probe = make_gym_env(task, 1, torch.device("cpu"), render=False)
+    action_dim = probe.unwrapped.single_action_space.shape[0]
+    probe.close()
+    generator = torch.Generator().manual_seed(0)
+
+    def draw(num_envs: int) -> torch.Tensor:
+        return torch.rand((args.warmup + args.steps, num_envs, action_dim), generator=generator) * 2 - 1
+
+    cpu = torch.device("cpu")
+    one, two = draw(1), draw(2)
+    rows = [
+        measure(
+            "cpu_1env",
+            lambda: raw_in_process(task, cpu, 1, one),
+            lambda: adapter(task, cpu, 1, one),
+            1,
+            cpu,
+            args,
+        ),
+        measure(
+            "cpu_2proc", lambda: raw_processes(task, 2, two), lambda: adapter(task, cpu, 2, two), 2, cpu, args
+        ),
+    ]
+    notes = []
+    if torch.cuda.is_available():
+        gpu = torch.device("cuda")
+        for n in args.gpu_envs:
+            acts = draw(n)
+            rows.append(
+                measure(
+                    f"gpu_{n}env",
+                    lambda n=n, acts=acts: raw_in_process(task, gpu, n, acts),
+                    lambda n=n, acts=acts: adapter(task, gpu, n, acts),
+                    n,
+                    gpu,
+                    args,
+                )
+            )
+    else:
+        notes.append("no CUDA device: GPU-parallel (physx_cuda) settings skipped")
+        print(notes[-1])
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    result = {
+        "task": task.name,
+        "env_id": task.env_id,
+        "obs_mode": task.obs_mode,
+        "control_mode": task.control_mode,
+        "max_episode_steps": task.max_episode_steps,
+        "timed_steps_per_env": args.steps,
+        "rounds": args.rounds,
+        "machine": f"{platform.machine()} {os.cpu_count()} cores, load average {load}"
+        + (f", {torch.cuda.get_device_name()}" if torch.cuda.is_available() else ", no GPU"),
+        "rows": rows,
+        "notes": notes,
+    }
+    out = Path(args.out or f"benchmarks/results/env_throughput_{task.obs_mode}.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2))
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
