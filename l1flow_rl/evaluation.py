@@ -252,24 +252,20 @@ def evaluate(
                     env = _recover(env, make, err)
                     td = start_all()
                     continue
-                next_td = td.get("next")
-                reward = next_td.get("reward").reshape(num_envs).tolist()
-                success = next_td.get("success").reshape(num_envs).tolist()
-                done = next_td.get("done").reshape(num_envs).tolist()
-                sim_error = next_td.get("sim_error").reshape(num_envs)
-                messages = sim_error_messages(env) if bool(sim_error.any()) else [None] * num_envs
+                reward, success, done, sim_error = _outcome(td.get("next"), num_envs)
+                messages = sim_error_messages(env) if any(sim_error) else [None] * num_envs
                 for i, ep in enumerate(schedule.slots):
-                    if ep is not None and not bool(sim_error[i]):  # a step that raised did not happen
+                    if ep is not None and not sim_error[i]:  # a step that raised did not happen
                         ep.ret += float(reward[i])
                         ep.length += 1
-                        ep.success_once |= bool(success[i])
-                        ep.success_at_end = bool(success[i])
+                        ep.success_once |= success[i]
+                        ep.success_at_end = success[i]
                 _add_frames(schedule, env)
                 td = step_mdp(td)
                 seeds: list[int | None] = [None] * num_envs
                 for i in range(num_envs):
                     if done[i]:
-                        error = (messages[i] or "simulator error") if bool(sim_error[i]) else None
+                        error = (messages[i] or "simulator error") if sim_error[i] else None
                         schedule.finish(i, error, video_dir, video_fps)
                         seeds[i] = schedule.assign(i)
                 if any(s is not None for s in seeds) and schedule.running:
@@ -281,6 +277,22 @@ def evaluate(
         if make is not None and not env.is_closed:
             env.close()
     return _summary(schedule.results, timed.latencies_s, seed, time.perf_counter() - start)
+
+
+def _outcome(next_td: TensorDictBase, num_envs: int) -> tuple[list, list, list, list]:
+    """Per env: reward, success, done, and whether the simulator failed (adapters that catch it)."""
+    success = next_td.get("success", None)
+    if success is None:
+        raise KeyError(
+            f"evaluate needs the env to write 'success' at every step; it wrote {list(next_td.keys())}"
+        )
+    sim_error = next_td.get("sim_error", torch.zeros(num_envs, dtype=torch.bool))
+    return (
+        next_td.get("reward").reshape(num_envs).tolist(),
+        [bool(v) for v in success.reshape(num_envs).tolist()],
+        [bool(v) for v in next_td.get("done").reshape(num_envs).tolist()],
+        [bool(v) for v in sim_error.reshape(num_envs).tolist()],
+    )
 
 
 def _recover(env: EnvBase, make: Callable[[], EnvBase] | None, err: Exception) -> EnvBase:
