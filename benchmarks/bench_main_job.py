@@ -31,7 +31,15 @@ def main() -> int:
     args = parser.parse_args()
     work = Path(args.workdir or tempfile.mkdtemp(prefix="l1flow-main-job-"))
     run_dir, data_dir = work / "run", work / "data"
-    cmd = [sys.executable, "-m", "l1flow_rl.cli", "train", f"data_dir={data_dir}", f"run_dir={run_dir}", *args.overrides]
+    cmd = [
+        sys.executable,
+        "-m",
+        "l1flow_rl.cli",
+        "train",
+        f"data_dir={data_dir}",
+        f"run_dir={run_dir}",
+        *args.overrides,
+    ]
     print("running:", " ".join(cmd), flush=True)
     start = time.perf_counter()
     proc = subprocess.run(cmd, check=False)
@@ -55,7 +63,9 @@ def main() -> int:
         "eval_episodes": result["episodes"],
         "success_over_target": round(result["success_once"] / TARGET_SUCCESS, 3),
         "chunk_latency_ms_median": result.get("latency_ms_median"),
-        "meets_targets": wall <= BUDGET_S and result["success_once"] >= TARGET_SUCCESS and result["episodes"] >= 50,
+        "meets_targets": wall <= BUDGET_S
+        and result["success_once"] >= TARGET_SUCCESS
+        and result["episodes"] >= 50,
     }
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,7 @@
 """``l1flow-rl``: one entry point, one sub-command per job, hydra overrides for everything else.
 
-    l1flow-rl train task=maniskill_pushcube policy=l1flow train.steps=3000
-    l1flow-rl train --cfg job          # print the composed config and exit
+l1flow-rl train task=maniskill_pushcube policy=l1flow train.steps=3000
+l1flow-rl train --cfg job          # print the composed config and exit
 """
 
 from __future__ import annotations
@@ -22,9 +22,17 @@ __all__ = ["COMMANDS", "compose_config", "main"]
 
 #: sub-command -> (module, function taking the composed DictConfig, one-line help)
 COMMANDS: dict[str, tuple[str, str, str]] = {
-    "train": ("l1flow_rl.workspace.train", "run_train", "generate missing demos, train, evaluate, checkpoint"),
+    "train": (
+        "l1flow_rl.workspace.train",
+        "run_train",
+        "generate missing demos, train, evaluate, checkpoint",
+    ),
     "eval": ("l1flow_rl.evaluation", "run_eval", "evaluate a checkpoint: eval.json (+ video on request)"),
-    "demos": ("l1flow_rl.data.maniskill_demos", "run_demos", "generate ManiSkill demonstrations into data_dir"),
+    "demos": (
+        "l1flow_rl.data.maniskill_demos",
+        "run_demos",
+        "generate ManiSkill demonstrations into data_dir",
+    ),
     "toy": ("l1flow_rl.toy", "run_toy", "the multi-modality demonstration (paper Fig. 2): toy.png, toy.json"),
 }
 
@@ -74,7 +82,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     overrides = []
     i = 0
     while i < len(rest):
-        if rest[i] in ("--cfg=job", "-c=job") or (rest[i] in ("--cfg", "-c") and rest[i + 1 : i + 2] == ["job"]):
+        if rest[i] in ("--cfg=job", "-c=job") or (
+            rest[i] in ("--cfg", "-c") and rest[i + 1 : i + 2] == ["job"]
+        ):
             print_cfg = True
             i += 1 if "=" in rest[i] else 2
             continue

@@ -24,7 +24,11 @@ from l1flow_rl.workspace.checkpoint import (
 
 
 def _state(value: float) -> dict:
-    return {"model": {"w": torch.full((3,), value)}, "config": {"task": {"env_id": "PushCube-v1"}}, "step": int(value)}
+    return {
+        "model": {"w": torch.full((3,), value)},
+        "config": {"task": {"env_id": "PushCube-v1"}},
+        "step": int(value),
+    }
 
 
 def test_round_trip_is_readable_with_weights_only(tmp_path):
@@ -49,13 +53,13 @@ def test_arbitrary_pickles_are_refused(tmp_path):
 
 
 def test_missing_and_foreign_files_are_named(tmp_path):
-    with pytest.raises(FileNotFoundError, match="nothere.pt"):
+    with pytest.raises(FileNotFoundError, match=r"nothere\.pt"):
         load_checkpoint(tmp_path / "nothere.pt")
     torch.save({"weights": torch.zeros(1)}, tmp_path / "foreign.pt")
     with pytest.raises(ValueError, match="no 'model' entry"):
         load_checkpoint(tmp_path / "foreign.pt")
     (tmp_path / "torn.pt").write_bytes(b"PK\x03\x04 not really a zip")
-    with pytest.raises(ValueError, match="torn.pt"):
+    with pytest.raises(ValueError, match=r"torn\.pt"):
         load_checkpoint(tmp_path / "torn.pt")
 
 
@@ -101,5 +105,5 @@ def test_loading_weights_into_another_network_says_what_differs():
         load_state_into(other, small.state_dict(), "ck.pt")
     assert "obs_normalizer" in str(info.value) or "film" in str(info.value)
     deeper = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32, 64))
-    with pytest.raises(CheckpointMismatchError, match="not in model|missing from checkpoint"):
+    with pytest.raises(CheckpointMismatchError, match=r"not in model|missing from checkpoint"):
         load_state_into(small, deeper.state_dict())

@@ -63,8 +63,13 @@ def test_help_lists_every_subcommand(capsys):
 
 def test_task_configs_are_valid_and_fit_their_demos():
     names = task_names()
-    for required in ("maniskill_pushcube", "maniskill_pickcube", "maniskill_stackcube", "maniskill_peginsertion",
-                     "maniskill_pickcube_rgb"):
+    for required in (
+        "maniskill_pushcube",
+        "maniskill_pickcube",
+        "maniskill_stackcube",
+        "maniskill_peginsertion",
+        "maniskill_pickcube_rgb",
+    ):
         assert required in names
     for name in names:
         task = load_task_config(name)

@@ -9,9 +9,9 @@ import torch
 
 pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
 
-from l1flow_rl.cli import main  # noqa: E402
-from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_checkpoint  # noqa: E402
-from l1flow_rl.workspace.trainer import Trainer  # noqa: E402
+from l1flow_rl.cli import main
+from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_checkpoint
+from l1flow_rl.workspace.trainer import Trainer
 
 pytestmark = pytest.mark.maniskill
 
@@ -68,7 +68,9 @@ def test_train_lowers_the_loss(full_run):
     assert sum(losses[-3:]) / 3 < losses[0]
 
 
-def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(tmp_path, data_dir, full_run, monkeypatch):
+def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(
+    tmp_path, data_dir, full_run, monkeypatch
+):
     run_dir = tmp_path / "run"
     real_step = Trainer.train_step
 
@@ -85,8 +87,17 @@ def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(tmp_pa
 
     with pytest.raises(FileExistsError, match="resume=true"):
         main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY])
-    with pytest.raises(CheckpointMismatchError, match="policy.down_dims"):
-        main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY, "resume=true", "policy.down_dims=[16,64]"])
+    with pytest.raises(CheckpointMismatchError, match=r"policy\.down_dims"):
+        main(
+            [
+                "train",
+                f"data_dir={data_dir}",
+                f"run_dir={run_dir}",
+                *TINY,
+                "resume=true",
+                "policy.down_dims=[16,64]",
+            ]
+        )
 
     assert main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY, "resume=true"]) == 0
     resumed = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
@@ -100,8 +111,19 @@ def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(tmp_pa
 def test_eval_command_on_a_checkpoint(tmp_path, full_run):
     out = tmp_path / "eval"
     ckpt = full_run / "checkpoints" / "best.pt"
-    assert main(["eval", f"checkpoint={ckpt}", "eval.episodes=2", "eval.num_envs=1", f"run_dir={out}",
-                 "task.max_episode_steps=30"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                f"checkpoint={ckpt}",
+                "eval.episodes=2",
+                "eval.num_envs=1",
+                f"run_dir={out}",
+                "task.max_episode_steps=30",
+            ]
+        )
+        == 0
+    )
     result = json.loads((out / "eval.json").read_text())
     assert result["episodes"] == 2
     assert set(result) >= {"success_once", "success_at_end"}

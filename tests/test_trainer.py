@@ -26,8 +26,15 @@ def _batch(n: int, seed: int) -> TensorDict:
 
 
 def _actor() -> L1FlowActor:
-    return L1FlowActor.for_state(obs_dim=3, action_dim=2, obs_horizon=2, pred_horizon=8, action_steps=4,
-                                 down_dims=(16, 32), timestep_embed_dim=16)
+    return L1FlowActor.for_state(
+        obs_dim=3,
+        action_dim=2,
+        obs_horizon=2,
+        pred_horizon=8,
+        action_steps=4,
+        down_dims=(16, 32),
+        timestep_embed_dim=16,
+    )
 
 
 def _trainer(steps: int = 60, actor: L1FlowActor | None = None, **kw) -> Trainer:

@@ -25,7 +25,9 @@ def _plain(cfg: DictConfig | Mapping) -> dict:
     return OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)  # type: ignore[return-value]
 
 
-def build_actor(policy_cfg: DictConfig | Mapping, obs_shapes: Mapping[str, tuple[int, ...]], action_dim: int) -> L1FlowActor:
+def build_actor(
+    policy_cfg: DictConfig | Mapping, obs_shapes: Mapping[str, tuple[int, ...]], action_dim: int
+) -> L1FlowActor:
     """Actor for the policy config and the dataset's observation entries (entry -> per-step shape)."""
     p = _plain(policy_cfg)
     non_flat = {k: s for k, s in obs_shapes.items() if len(s) != 1}

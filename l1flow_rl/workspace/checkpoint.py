@@ -100,7 +100,9 @@ def _select(cfg: Mapping[str, Any], dotted: str) -> Any:
     return node
 
 
-def check_compatible(saved_cfg: Mapping[str, Any], cfg: DictConfig | Mapping[str, Any], path: str = "") -> None:
+def check_compatible(
+    saved_cfg: Mapping[str, Any], cfg: DictConfig | Mapping[str, Any], path: str = ""
+) -> None:
     """Raise :class:`CheckpointMismatchError` listing every identity field that differs."""
     current = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
     diffs = [
@@ -109,7 +111,9 @@ def check_compatible(saved_cfg: Mapping[str, Any], cfg: DictConfig | Mapping[str
         if _select(saved_cfg, f) != _select(current, f)
     ]
     if diffs:
-        raise CheckpointMismatchError(f"checkpoint {path!r} does not fit this config:\n  " + "\n  ".join(diffs))
+        raise CheckpointMismatchError(
+            f"checkpoint {path!r} does not fit this config:\n  " + "\n  ".join(diffs)
+        )
 
 
 def load_actor(
@@ -145,7 +149,9 @@ def load_state_into(actor: torch.nn.Module, weights: Mapping[str, torch.Tensor],
             parts.append(f"missing from checkpoint: {missing[:10]}")
         if unexpected:
             parts.append(f"not in model: {unexpected[:10]}")
-        raise CheckpointMismatchError(f"checkpoint {path!r} does not fit the network:\n  " + "\n  ".join(parts))
+        raise CheckpointMismatchError(
+            f"checkpoint {path!r} does not fit the network:\n  " + "\n  ".join(parts)
+        )
     actor.load_state_dict(weights)
 
 
@@ -170,7 +176,9 @@ def get_rng_state() -> dict[str, Any]:
 def set_rng_state(state: Mapping[str, Any]) -> None:
     torch.set_rng_state(state["torch"])
     n = state["numpy"]
-    np.random.set_state(("MT19937", n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
+    np.random.set_state(
+        ("MT19937", n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"])
+    )
     py = state["python"]
     random.setstate((py[0], tuple(py[1]), py[2]))
     if "cuda" in state and torch.cuda.is_available():

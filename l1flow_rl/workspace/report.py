@@ -9,7 +9,9 @@ from typing import Any
 __all__ = ["format_summary", "save_plots"]
 
 
-def save_plots(history: Mapping[str, Sequence[float]], evals: Sequence[Mapping[str, Any]], run_dir: Path) -> list[Path]:
+def save_plots(
+    history: Mapping[str, Sequence[float]], evals: Sequence[Mapping[str, Any]], run_dir: Path
+) -> list[Path]:
     """``loss.png`` (training loss and LR against step) and ``success.png`` (eval success against step)."""
     import matplotlib
 

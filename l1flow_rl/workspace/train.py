@@ -74,7 +74,10 @@ class _Evaluator:
         if self.env is None:
             task = OmegaConf.to_object(self.cfg.task)
             self.env = make_env(
-                task, num_envs=self.cfg.eval.num_envs, device=str(self.device), obs_horizon=self.cfg.policy.obs_horizon
+                task,
+                num_envs=self.cfg.eval.num_envs,
+                device=str(self.device),
+                obs_horizon=self.cfg.policy.obs_horizon,
             )
         with torch.random.fork_rng(devices=[]), torch.no_grad():
             metrics = evaluate(
@@ -109,12 +112,15 @@ def run_train(cfg: DictConfig) -> int:
     resume_state = None
     if cfg.resume:
         if not latest.is_file():
-            raise FileNotFoundError(f"resume=true but {str(latest)!r} does not exist; drop resume=true to start fresh")
+            raise FileNotFoundError(
+                f"resume=true but {str(latest)!r} does not exist; drop resume=true to start fresh"
+            )
         resume_state = load_checkpoint(latest)
         check_compatible(resume_state["config"], cfg, str(latest))
     elif latest.is_file() and rank == 0:
         raise FileExistsError(
-            f"{str(run_dir)!r} already holds a run ({latest}); pass resume=true to continue it or choose another run_dir"
+            f"{str(run_dir)!r} already holds a run ({latest}); pass resume=true to continue it "
+            "or choose another run_dir"
         )
 
     # -- data --------------------------------------------------------------------------------
@@ -225,11 +231,19 @@ def run_train(cfg: DictConfig) -> int:
                     logger.log_scalar(f"train/{k}", v, step=step)
             if not is_main:
                 continue
-            if evaluator is not None and tcfg.eval_every and step % tcfg.eval_every == 0 and step < tcfg.steps:
+            if (
+                evaluator is not None
+                and tcfg.eval_every
+                and step % tcfg.eval_every == 0
+                and step < tcfg.steps
+            ):
                 result = evaluator(trainer.ema_actor, step)
                 evals.append(_headline(result))
                 logger.log_scalar("eval/success_once", result["success_once"], step=step)
-                bar.write(f"step {step}: success_once={result['success_once']:.3f} over {result['episodes']} episodes")
+                bar.write(
+                    f"step {step}: success_once={result['success_once']:.3f} "
+                    f"over {result['episodes']} episodes"
+                )
                 if result["success_once"] > best:
                     best = result["success_once"]
                     save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())

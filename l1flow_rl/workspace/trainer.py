@@ -79,7 +79,9 @@ class Trainer:
             actor.policy.net.compile()  # in place: the state_dict keys stay the same
         params = [p for p in actor.parameters() if p.requires_grad]
         self.optimizer = torch.optim.AdamW(params, lr=lr, betas=tuple(betas), weight_decay=weight_decay)
-        self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, warmup_cosine(warmup_steps, total_steps))
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(
+            self.optimizer, warmup_cosine(warmup_steps, total_steps)
+        )
         self.ema = make_ema(actor, power=ema_power)
         self.step = 0
         summed = _SummedLoss(loss_fn)
@@ -92,9 +94,7 @@ class Trainer:
 
     def train_step(self, batch: TensorDictBase) -> dict[str, float]:
         device_type = next(self.actor.parameters()).device.type
-        autocast = (
-            torch.autocast(device_type, dtype=torch.bfloat16) if self.amp else contextlib.nullcontext()
-        )
+        autocast = torch.autocast(device_type, dtype=torch.bfloat16) if self.amp else contextlib.nullcontext()
         with autocast:
             loss, diagnostics = self._forward(batch)
         self.optimizer.zero_grad(set_to_none=True)
@@ -106,7 +106,11 @@ class Trainer:
         self.scheduler.step()
         self.ema.update_parameters(self.actor)
         self.step += 1
-        metrics = {"loss": float(loss.detach()), "lr": self.scheduler.get_last_lr()[0], "grad_norm": float(grad_norm)}
+        metrics = {
+            "loss": float(loss.detach()),
+            "lr": self.scheduler.get_last_lr()[0],
+            "grad_norm": float(grad_norm),
+        }
         metrics.update({k: float(v) for k, v in diagnostics.items() if v.numel() == 1})
         return metrics
 
