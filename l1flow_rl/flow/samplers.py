@@ -84,10 +84,8 @@ class TwoStepSampler(ChunkSampler):
         return denoise(x, _full(x_init, self.t_first))
 
 
-class EulerSampler(ChunkSampler):
-    """n uniform Euler steps for a sample-prediction network, using v = (f - x_t) / (1 - t)."""
-
-    prediction = "sample"
+class _UniformEuler(ChunkSampler):
+    """``steps`` uniform Euler steps from t=0 to t=1; subclasses say how the network gives a velocity."""
 
     def __init__(self, steps: int = 10) -> None:
         if steps < 1:
@@ -97,34 +95,34 @@ class EulerSampler(ChunkSampler):
     @property
     def nfe(self) -> int:
         return self.steps
+
+    @abc.abstractmethod
+    def _velocity(self, output: Tensor, x: Tensor, t: Tensor) -> Tensor: ...
 
     def __call__(self, denoise, x_init, *, deterministic=False, generator=None):
         x, dt = x_init, 1.0 / self.steps
         for i in range(self.steps):
             t = _full(x, i * dt)
-            x = x + dt * velocity_from_sample(denoise(x, t), x, t)
+            x = x + dt * self._velocity(denoise(x, t), x, t)
         return x
 
 
-class VelocityEulerSampler(ChunkSampler):
+class EulerSampler(_UniformEuler):
+    """n uniform Euler steps for a sample-prediction network, using v = (f - x_t) / (1 - t)."""
+
+    prediction = "sample"
+
+    def _velocity(self, output, x, t):
+        return velocity_from_sample(output, x, t)
+
+
+class VelocityEulerSampler(_UniformEuler):
     """n uniform Euler steps for a v-prediction flow-matching network."""
 
     prediction = "velocity"
 
-    def __init__(self, steps: int = 10) -> None:
-        if steps < 1:
-            raise ValueError(f"steps must be >= 1, got {steps}")
-        self.steps = int(steps)
-
-    @property
-    def nfe(self) -> int:
-        return self.steps
-
-    def __call__(self, denoise, x_init, *, deterministic=False, generator=None):
-        x, dt = x_init, 1.0 / self.steps
-        for i in range(self.steps):
-            x = x + dt * denoise(x, _full(x, i * dt))
-        return x
+    def _velocity(self, output, x, t):
+        return output
 
 
 class DirectSampler(ChunkSampler):
