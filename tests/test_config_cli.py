@@ -18,7 +18,16 @@ def test_default_config_is_the_main_job():
     assert cfg.demos.num == 100
     assert list(cfg.train.betas) == [0.95, 0.999]
     assert cfg.train.weight_decay == 1e-6
+    assert cfg.train.ema_power == 0.75
+    assert cfg.eval.episodes >= 50
+
+
+def test_paper_training_preset():
+    cfg = compose_config(["train=paper"])
+    assert cfg.train.lr == 1e-4
     assert cfg.train.warmup_steps == 500
+    assert cfg.train.batch_size == 64
+    assert list(cfg.train.betas) == [0.95, 0.999]
     assert cfg.run_dir == "runs/maniskill_pushcube_l1flow"
 
 
