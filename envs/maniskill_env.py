@@ -47,17 +47,30 @@ def make_gym_env(task: TaskConfig, num_envs: int, device: torch.device, *, rende
         backend = "physx_cpu"
     else:
         backend = "physx_cuda" if device.index is None else f"physx_cuda:{device.index}"
-    return gym.make(
-        task.env_id,
-        num_envs=num_envs,
-        obs_mode=task.obs_mode,
-        control_mode=task.control_mode,
-        reward_mode=task.reward_mode,
-        max_episode_steps=task.max_episode_steps,
-        sim_backend=backend,
-        render_mode="rgb_array" if render else None,
-        **kwargs,
-    )
+    try:
+        return gym.make(
+            task.env_id,
+            num_envs=num_envs,
+            obs_mode=task.obs_mode,
+            control_mode=task.control_mode,
+            reward_mode=task.reward_mode,
+            max_episode_steps=task.max_episode_steps,
+            sim_backend=backend,
+            render_mode="rgb_array" if render else None,
+            **kwargs,
+        )
+    except RuntimeError as err:
+        if any(marker in str(err).lower() for marker in ("physical device", "vulkan", "vk::")):
+            raise RuntimeError(f"{err}\n{VULKAN_HINT}") from err
+        raise
+
+
+VULKAN_HINT = (
+    "SAPIEN (ManiSkill) found no usable Vulkan device. Without a GPU driver it needs Mesa lavapipe >= 24.3 "
+    "and libvulkan1; on Debian bookworm: add bookworm-backports and run "
+    "'apt-get install -t bookworm-backports mesa-vulkan-drivers && apt-get install libvulkan1' "
+    "(./install.sh does this)."
+)
 
 
 class ManiSkillEnv(EnvBase):
