@@ -73,7 +73,10 @@ class PolicyConfig:
     timestep_embed_dim: int = 64
     kernel_size: int = 5
     n_groups: int = 8
-    normalizer: str = "limits"  # limits | gaussian
+    normalizer: str = "limits"  # actions: limits | gaussian | identity
+    # Observations: limits blows up near-constant state dims (a 0.003-wide range scaled to [-1, 1]),
+    # so states pass through raw by default, as in ManiSkill's baseline.
+    obs_normalizer: str = "identity"  # limits | gaussian | identity
 
 
 @dataclass

@@ -158,7 +158,7 @@ def run_train(cfg: DictConfig) -> int:
     action_dim = int(episodes["action"].shape[-1])
     obs_shapes = _obs_shapes(episodes)
     actor = build_actor(pcfg, obs_shapes, action_dim)
-    fit_normalizers(actor.policy, episodes, mode=pcfg.normalizer)
+    fit_normalizers(actor.policy, episodes, mode=pcfg.normalizer, obs_mode=pcfg.obs_normalizer)
     actor.to(device)
     loss_fn = build_loss(actor, pcfg)
     trainer = Trainer(
