@@ -2,13 +2,14 @@
 
 Three settings, each measured in this run against its own raw baseline:
   cpu_1env   one physx_cpu env in this process (raw: the gymnasium env stepped directly);
-  cpu_2proc  two physx_cpu envs in worker processes (adapter: ParallelEnv; raw: gymnasium
-             AsyncVectorEnv over ManiSkill's CPUGymWrapper, autoreset disabled);
+  cpu_2proc  two physx_cpu envs in worker processes (raw: gymnasium AsyncVectorEnv over ManiSkill's
+             CPUGymWrapper, autoreset disabled), through both of make_env's CPU backends: "async"
+             (the default, ManiSkillAsyncEnv) and "parallel" (TorchRL's ParallelEnv);
   gpu_<N>env one physx_cuda scene of N envs (skipped, with a note, when CUDA is absent).
-Both sides step the same pre-drawn random actions and reset at the time limit; the adapter runs
-with its history stacking (the env the evaluator uses). Start-up is not timed. Raw and adapter
+All sides step the same pre-drawn random actions and reset at the time limit; the adapters run
+with their history stacking (the env the evaluator uses). Start-up is not timed. Raw and adapter
 blocks alternate (``--rounds``) and the medians are reported, so that load drifting on a shared
-machine hits both alike; this process's CPU time per step is reported too.
+machine hits all alike; this process's CPU time per step is reported too.
 
     .venv/bin/python benchmarks/bench_env_throughput.py [--steps 600] [--gpu-envs 256 1024] [--obs-mode rgb]
 """
@@ -76,9 +77,11 @@ def raw_processes(task: TaskConfig, workers: int, actions: torch.Tensor) -> Step
     return step, env.close
 
 
-def adapter(task: TaskConfig, device: torch.device, num_envs: int, actions: torch.Tensor) -> Stepper:
+def adapter(
+    task: TaskConfig, device: torch.device, num_envs: int, actions: torch.Tensor, **make_kwargs
+) -> Stepper:
     """make_env's TorchRL env, stepped with step_and_maybe_reset (resets each done env)."""
-    env = make_env(task, num_envs=num_envs, device=device)
+    env = make_env(task, num_envs=num_envs, device=device, **make_kwargs)
     state = {"td": env.reset()}
     actions = actions.to(env.device)
 
@@ -103,8 +106,11 @@ def _timed_block(
     return time.perf_counter() - wall, time.process_time() - cpu
 
 
-def measure(name: str, make_raw, make_adapter, num_envs: int, device: torch.device, args) -> dict:
-    sides = {"raw": make_raw(), "adapter": make_adapter()}
+def measure(
+    name: str, make_raw, adapters: dict[str, Callable[[], Stepper]], num_envs: int, device, args
+) -> dict:
+    """Steps/s of raw ManiSkill and of each adapter, in alternating blocks; ratios against raw."""
+    sides = {"raw": make_raw(), **{side: make() for side, make in adapters.items()}}
     if args.threads > 0:  # TorchRL's ParallelEnv resets this process's thread count when it starts
         torch.set_num_threads(args.threads)
     block = args.steps // args.rounds
@@ -122,22 +128,27 @@ def measure(name: str, make_raw, make_adapter, num_envs: int, device: torch.devi
     finally:
         for _, close in sides.values():
             close()
-    raw, ours = statistics.median(rates["raw"]), statistics.median(rates["adapter"])
+    raw = statistics.median(rates["raw"])
     row = {
         "setting": name,
         "num_envs": num_envs,
         "raw_steps_per_s": round(raw, 1),
-        "adapter_steps_per_s": round(ours, 1),
-        "adapter_over_raw": round(ours / raw, 3),
-        "main_process_cpu_ms_per_step": {s: round(statistics.median(v), 3) for s, v in cpu_ms.items()},
+        "raw_main_process_cpu_ms_per_step": round(statistics.median(cpu_ms["raw"]), 3),
+        "adapters": {},
         "torch_threads": torch.get_num_threads(),
     }
-    print(
-        f"{name:>12}: raw {raw:9.1f} steps/s  adapter {ours:9.1f} steps/s  ratio {ours / raw:.3f}  "
-        f"(main-process CPU ms/step raw {row['main_process_cpu_ms_per_step']['raw']:.2f}, "
-        f"adapter {row['main_process_cpu_ms_per_step']['adapter']:.2f})",
-        flush=True,
-    )
+    line = f"{name:>12}: raw {raw:9.1f} steps/s ({row['raw_main_process_cpu_ms_per_step']:.2f} ms CPU here)"
+    for side in adapters:
+        ours = statistics.median(rates[side])
+        row["adapters"][side] = {
+            "steps_per_s": round(ours, 1),
+            "over_raw": round(ours / raw, 3),
+            "main_process_cpu_ms_per_step": round(statistics.median(cpu_ms[side]), 3),
+        }
+        line += (
+            f" | {side} {ours:9.1f} steps/s, ratio {ours / raw:.3f}, {statistics.median(cpu_ms[side]):.2f} ms"
+        )
+    print(line, flush=True)
     return row
 
 
@@ -171,13 +182,21 @@ def main() -> int:
         measure(
             "cpu_1env",
             lambda: raw_in_process(task, cpu, 1, one),
-            lambda: adapter(task, cpu, 1, one),
+            {"in_process": lambda: adapter(task, cpu, 1, one)},
             1,
             cpu,
             args,
         ),
         measure(
-            "cpu_2proc", lambda: raw_processes(task, 2, two), lambda: adapter(task, cpu, 2, two), 2, cpu, args
+            "cpu_2proc",
+            lambda: raw_processes(task, 2, two),
+            {
+                backend: functools.partial(adapter, task, cpu, 2, two, cpu_backend=backend)
+                for backend in ("async", "parallel")
+            },
+            2,
+            cpu,
+            args,
         ),
     ]
     notes = []
@@ -189,7 +208,7 @@ def main() -> int:
                 measure(
                     f"gpu_{n}env",
                     lambda n=n, acts=acts: raw_in_process(task, gpu, n, acts),
-                    lambda n=n, acts=acts: adapter(task, gpu, n, acts),
+                    {"physx_cuda": lambda n=n, acts=acts: adapter(task, gpu, n, acts)},
                     n,
                     gpu,
                     args,

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import multiprocessing
 
 import torch
 from torchrl.envs import (
@@ -19,9 +18,7 @@ from torchrl.envs import (
 
 from l1flow_rl.config import TaskConfig, load_task_config
 
-__all__ = ["history_transforms", "make_env", "resolve_device"]
-
-_WORKER_PRELOAD = ["torch", "torchrl.envs", "mani_skill.envs", "l1flow_rl.envs.maniskill_env"]
+__all__ = ["CPU_BACKENDS", "history_transforms", "make_env", "resolve_device"]
 
 #: observation entry -> the dim of one frame's [C, H, W] or [D] that history is stacked in front of
 _FRAME_DIMS = {"state": -2, "rgb": -4}
@@ -60,7 +57,13 @@ def resolve_device(device: str | torch.device) -> torch.device:
     return device
 
 
-def _maniskill_base(task: TaskConfig, num_envs: int, device: torch.device, **env_kwargs) -> EnvBase:
+#: make_env's ways of running several physx_cpu envs, one per worker process
+CPU_BACKENDS = ("async", "parallel")
+
+
+def _maniskill_base(
+    task: TaskConfig, num_envs: int, device: torch.device, cpu_backend: str, **env_kwargs
+) -> EnvBase:
     from l1flow_rl.envs.maniskill_env import ManiSkillEnv
 
     if device.type != "cpu":
@@ -68,14 +71,15 @@ def _maniskill_base(task: TaskConfig, num_envs: int, device: torch.device, **env
     if num_envs == 1:
         return ManiSkillEnv(task, num_envs=1, **env_kwargs)
     # physx_cpu holds one env per process: one unbatched env per worker, batch [num_envs] in here.
-    # Workers fork from a clean server that has the simulator imported (a spawned worker re-imports
-    # everything, ~10 s each here; a plain fork of this process hung with ManiSkill in it), and report
-    # their specs themselves so that this process never builds a simulator (or a Vulkan device).
-    multiprocessing.set_forkserver_preload(_WORKER_PRELOAD)
+    from l1flow_rl.envs.maniskill_async import ManiSkillAsyncEnv, use_forkserver
+
+    if cpu_backend == "async":
+        return ManiSkillAsyncEnv(task, num_envs, **env_kwargs)
+    # Workers report their specs themselves, so that this process never builds a simulator.
     return ParallelEnv(
         num_envs,
         functools.partial(ManiSkillEnv, task, num_envs=None, **env_kwargs),
-        mp_start_method="forkserver",
+        mp_start_method=use_forkserver(),
         metadata_from_workers=True,
         use_buffers=False,
     )
@@ -91,14 +95,15 @@ def make_env(
     render: bool = True,
     camera: str | None = None,
     reconfigure_each_episode: bool = False,
+    cpu_backend: str = "async",
     **overrides,
 ) -> TransformedEnv:
     """The TorchRL env of a task, batch size ``[num_envs]``, with observation history.
 
     Args:
         task: a task config name (a file in ``configs/task``) or a :class:`TaskConfig`.
-        num_envs: parallel envs. CPU: that many worker processes (one env each, ``ParallelEnv``
-            started through multiprocessing's forkserver, so a script that makes one needs the
+        num_envs: parallel envs. CPU: that many worker processes (one env each, started through
+            multiprocessing's forkserver, so a script that makes one needs the
             ``if __name__ == "__main__":`` guard); CUDA: one ManiSkill physx_cuda scene with that
             many envs in this process.
         device: ``"cpu"``, ``"cuda"``/``"cuda:k"`` or ``"auto"``.
@@ -108,6 +113,9 @@ def make_env(
         camera: which camera feeds ``"rgb"`` when the task has several.
         reconfigure_each_episode: CPU only: rebuild the scene at each reset, so that an episode
             depends on its seed alone and not on the episodes before it (see ``ManiSkillEnv``).
+        cpu_backend: how CPU workers run when ``num_envs > 1``: ``"async"`` (gymnasium's
+            ``AsyncVectorEnv`` under :class:`~l1flow_rl.envs.maniskill_async.ManiSkillAsyncEnv`,
+            the faster) or ``"parallel"`` (TorchRL's ``ParallelEnv``).
         overrides: task config fields, e.g. ``max_episode_steps=50``.
 
     Example:
@@ -121,6 +129,8 @@ def make_env(
         cfg = load_task_config(task, **overrides)
     if num_envs < 1:
         raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    if cpu_backend not in CPU_BACKENDS:
+        raise ValueError(f"cpu_backend must be one of {CPU_BACKENDS}, got {cpu_backend!r}")
     env_kwargs = {
         "ignore_terminations": ignore_terminations,
         "render": render,
@@ -128,7 +138,7 @@ def make_env(
         "reconfigure_each_episode": reconfigure_each_episode,
     }
     if cfg.simulator == "maniskill":
-        base = _maniskill_base(cfg, num_envs, resolve_device(device), **env_kwargs)
+        base = _maniskill_base(cfg, num_envs, resolve_device(device), cpu_backend, **env_kwargs)
     else:
         raise NotImplementedError(
             f"task {cfg.name!r}: make_env has no adapter for simulator {cfg.simulator!r} (has: 'maniskill')"

@@ -2,7 +2,7 @@
 
 Hand-written rather than ``GymWrapper`` because none of TorchRL's wrappers handles what ManiSkill
 needs: batched observations with an unbatched action space, partial resets by ``env_idx`` on the
-GPU, per-episode seeds, and surviving a simulator exception without killing a ParallelEnv worker.
+GPU, per-episode seeds, and surviving a simulator exception without killing a worker process.
 """
 
 from __future__ import annotations
@@ -11,11 +11,10 @@ from typing import Any
 
 import numpy as np
 import torch
+from l1flow_rl.envs.maniskill_base import ManiSkillEnvBase
 from l1flow_rl.envs.maniskill_obs import flatten_maniskill_obs
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
-from torchrl.data import Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import EnvBase
 
 from l1flow_rl.config import TaskConfig
 
@@ -73,10 +72,10 @@ VULKAN_HINT = (
 )
 
 
-class ManiSkillEnv(EnvBase):
+class ManiSkillEnv(ManiSkillEnvBase):
     """One ManiSkill task, one TorchRL env.
 
-    ``num_envs=None`` gives an unbatched env (batch size ``[]``), the unit a ``ParallelEnv`` worker
+    ``num_envs=None`` gives an unbatched env (batch size ``[]``), the unit a CPU worker process
     runs; ``num_envs=N`` gives batch size ``[N]``. On ``device="cpu"`` ManiSkill runs physx_cpu,
     which holds one env per process (N must be 1: use :func:`~l1flow_rl.envs.make_env`, which
     spreads CPU envs over worker processes); on a CUDA device it runs physx_cuda with N envs in
@@ -114,12 +113,6 @@ class ManiSkillEnv(EnvBase):
         reconfigure_each_episode: bool = False,
     ) -> None:
         device = torch.device(device)
-        if task.simulator != "maniskill":
-            raise ValueError(
-                f"task {task.name!r} has simulator={task.simulator!r}; ManiSkillEnv needs 'maniskill'"
-            )
-        if task.obs_mode not in ("state", "rgb"):
-            raise ValueError(f"task {task.name!r}: obs_mode must be 'state' or 'rgb', got {task.obs_mode!r}")
         if num_envs is not None and num_envs < 1:
             raise ValueError(f"num_envs must be >= 1 or None, got {num_envs}")
         if device.type == "cpu" and num_envs not in (None, 1):
@@ -127,24 +120,29 @@ class ManiSkillEnv(EnvBase):
                 f"ManiSkill's physx_cpu backend runs one env per process, got num_envs={num_envs}; "
                 "use l1flow_rl.envs.make_env (worker processes) or a CUDA device"
             )
-        if reconfigure_each_episode and device.type != "cpu":
-            raise ValueError(
-                "reconfigure_each_episode needs physx_cpu: physx_cuda cannot rebuild some envs of a scene"
-            )
-        super().__init__(device=device, batch_size=torch.Size([] if num_envs is None else [num_envs]))
-        self.task = task
-        self.ignore_terminations = ignore_terminations
-        self.render_enabled = render
-        self.camera = camera
-        self.reconfigure_each_episode = reconfigure_each_episode
+        super().__init__(
+            task,
+            batch_size=torch.Size([] if num_envs is None else [num_envs]),
+            device=device,
+            ignore_terminations=ignore_terminations,
+            render=render,
+            camera=camera,
+            reconfigure_each_episode=reconfigure_each_episode,
+        )
         self.last_sim_error: str | None = None
-        self._sim_envs = num_envs or 1
         self._broken = False
         self._gym_env = self._make_sim()
-        self._make_specs()
+        space = self.sim.single_observation_space
+        if task.obs_mode == "state":
+            obs_shapes = {"state": tuple(space.shape)}
+        else:
+            obs_shapes = {
+                k: tuple(v.shape) for k, v in flatten_maniskill_obs(space.sample(), camera=camera).items()
+            }
+        action_space = self.sim.single_action_space
+        self._make_specs(obs_shapes, action_space.low, action_space.high)
         self._last_obs: TensorDictBase | Tensor | None = None
         self._last_success: Tensor | None = None
-        self._seed: int | None = None
 
     # -- simulator --------------------------------------------------------------------------------
 
@@ -156,50 +154,7 @@ class ManiSkillEnv(EnvBase):
         """The underlying ManiSkill ``BaseEnv`` (``gym_env.unwrapped``)."""
         return self._gym_env.unwrapped
 
-    def _make_specs(self) -> None:
-        batch, device = self.batch_size, self.device
-        space = self.sim.single_observation_space
-        if self.task.obs_mode == "state":
-            observation = Unbounded(shape=(*batch, *space.shape), dtype=torch.float32, device=device)
-        else:
-            example = flatten_maniskill_obs(space.sample(), camera=self.camera)
-            observation = Composite(
-                state=Unbounded(shape=(*batch, *example["state"].shape), dtype=torch.float32, device=device),
-                rgb=Bounded(0, 255, shape=(*batch, *example["rgb"].shape), dtype=torch.uint8, device=device),
-                shape=batch,
-                device=device,
-            )
-        flag = {"shape": (*batch, 1), "dtype": torch.bool, "device": device}
-        self.observation_spec = Composite(
-            observation=observation,
-            success=Categorical(2, **flag),
-            sim_error=Categorical(2, **flag),
-            shape=batch,
-            device=device,
-        )
-        action_space = self.sim.single_action_space
-        self.action_spec = Bounded(
-            low=torch.as_tensor(action_space.low, device=device).expand(*batch, *action_space.shape),
-            high=torch.as_tensor(action_space.high, device=device).expand(*batch, *action_space.shape),
-            shape=(*batch, *action_space.shape),
-            dtype=torch.float32,
-            device=device,
-        )
-        self.reward_spec = Unbounded(shape=(*batch, 1), dtype=torch.float32, device=device)
-        self.done_spec = Composite(
-            done=Categorical(2, **flag),
-            terminated=Categorical(2, **flag),
-            truncated=Categorical(2, **flag),
-            shape=batch,
-            device=device,
-        )
-
     # -- conversions -----------------------------------------------------------------------------
-
-    def _unsim(self, value: Tensor) -> Tensor:
-        """ManiSkill's [num_envs, ...] -> this env's [*batch, ...] on this env's device."""
-        value = value.to(self.device)
-        return value.squeeze(0) if not self.batch_size else value
 
     def _observation(self, raw: Any) -> Tensor | TensorDictBase:
         if self.task.obs_mode == "state":
@@ -207,31 +162,6 @@ class ManiSkillEnv(EnvBase):
         flat = flatten_maniskill_obs(raw, camera=self.camera)
         return TensorDict(
             {k: self._unsim(v) for k, v in flat.items()}, batch_size=self.batch_size, device=self.device
-        )
-
-    def _flag(self, value: Any) -> Tensor:
-        value = torch.as_tensor(value, device=self.device).to(torch.bool).reshape(self._sim_envs, 1)
-        return self._unsim(value)
-
-    def _output(self, obs, reward, terminated, truncated, info, sim_error: bool) -> TensorDictBase:
-        success = info.get("success") if isinstance(info, dict) else None
-        if success is None:
-            success = torch.zeros(self._sim_envs, dtype=torch.bool)
-        done = terminated | truncated
-        return TensorDict(
-            {
-                "observation": obs,
-                "reward": self._unsim(
-                    torch.as_tensor(reward, dtype=torch.float32).reshape(self._sim_envs, 1)
-                ),
-                "done": self._flag(done),
-                "terminated": self._flag(terminated),
-                "truncated": self._flag(truncated),
-                "success": self._flag(success),
-                "sim_error": self._flag(torch.full((self._sim_envs,), sim_error)),
-            },
-            batch_size=self.batch_size,
-            device=self.device,
         )
 
     # -- EnvBase ---------------------------------------------------------------------------------
@@ -248,14 +178,13 @@ class ManiSkillEnv(EnvBase):
                 self._broken = True
                 self.last_sim_error = f"{type(err).__name__}: {err}"
             else:
-                terminated = torch.as_tensor(terminated, device=self.device).reshape(n)
                 if self.ignore_terminations:
-                    terminated = torch.zeros_like(terminated)
-                truncated = torch.as_tensor(truncated, device=self.device).reshape(n)
+                    terminated = torch.zeros_like(torch.as_tensor(terminated))
                 self._last_obs = self._observation(obs)
-                return self._output(self._last_obs, reward, terminated, truncated, info, sim_error=False)
+                success = info.get("success") if isinstance(info, dict) else None
+                return self._output(self._last_obs, reward, terminated, truncated, success, sim_error=False)
         failed = torch.ones(n, dtype=torch.bool, device=self.device)
-        return self._output(self._last_obs, torch.zeros(n), ~failed, failed, {}, sim_error=True)
+        return self._output(self._last_obs, torch.zeros(n), ~failed, failed, None, sim_error=True)
 
     def _reset(
         self, tensordict: TensorDictBase | None = None, *, seed: Any = None, **kwargs
@@ -283,7 +212,7 @@ class ManiSkillEnv(EnvBase):
             self._last_obs, self._last_success = self._observation(raw_obs), info.get("success")
         n = self._sim_envs
         no = torch.zeros(n, dtype=torch.bool, device=self.device)
-        out = self._output(self._last_obs, torch.zeros(n), no, no, {"success": self._last_success}, False)
+        out = self._output(self._last_obs, torch.zeros(n), no, no, self._last_success, False)
         return out.exclude("reward")
 
     def _sim_reset(self, idx: Tensor, seeds: list[int] | None) -> tuple[Any, dict]:
@@ -302,22 +231,6 @@ class ManiSkillEnv(EnvBase):
             seeds = full.tolist()
         return self._gym_env.reset(seed=seeds, options={"env_idx": idx})
 
-    def _episode_seeds(self, seed: Any, count: int) -> list[int] | None:
-        if seed is None and self._seed is not None:  # set_seed(): consecutive seeds from there on
-            seed = list(range(self._seed, self._seed + count))
-            self._seed += count
-        if seed is None:
-            return None
-        seeds = [
-            int(s) for s in (seed.reshape(-1).tolist() if isinstance(seed, Tensor) else np.atleast_1d(seed))
-        ]
-        if len(seeds) != count:
-            raise ValueError(f"reset(seed=...): got {len(seeds)} seeds for {count} envs being reset")
-        return seeds
-
-    def _set_seed(self, seed: int | None) -> None:
-        self._seed = seed
-
     def sim_error_message(self) -> str | None:
         """The simulator exception that ended the current episode(s), until the next reset."""
         return self.last_sim_error
@@ -333,9 +246,3 @@ class ManiSkillEnv(EnvBase):
             self._gym_env.close()
             self._gym_env = None
         super().close(raise_if_closed=raise_if_closed)
-
-    def __repr__(self) -> str:
-        return (
-            f"{type(self).__name__}(env_id={self.task.env_id!r}, obs_mode={self.task.obs_mode!r}, "
-            f"batch_size={tuple(self.batch_size)}, device={self.device})"
-        )

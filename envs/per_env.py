@@ -1,6 +1,7 @@
-"""Per-env operations on whatever :func:`make_env` returns: one env, a ParallelEnv of CPU workers,
-or one physx_cuda scene, each possibly under transforms. Hand-written: TorchRL reaches worker
-methods through attribute dispatch but has no per-env seeded reset or per-env query of its own."""
+"""Per-env operations on whatever :func:`make_env` returns: one env, CPU workers (ManiSkillAsyncEnv
+or a ParallelEnv), or one physx_cuda scene, each possibly under transforms. Hand-written: TorchRL
+reaches worker methods through attribute dispatch but has no per-env seeded reset or per-env query
+of its own."""
 
 from __future__ import annotations
 
@@ -59,9 +60,9 @@ def seeded_reset(
 def _per_worker(env: EnvBase, method: str) -> list:
     base = _innermost(env)
     values = getattr(base, method)()
-    if isinstance(base, BatchedEnvBase):
+    if isinstance(values, (list, tuple, Tensor)):  # one value per env (ParallelEnv dispatch gives a list)
         return list(values)
-    return [values] * num_parallel_envs(env) if not isinstance(values, Tensor) else list(values)
+    return [values] * num_parallel_envs(env)  # one value for the whole scene
 
 
 def sim_error_messages(env: EnvBase) -> list[str | None]:

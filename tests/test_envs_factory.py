@@ -33,6 +33,8 @@ def test_bad_arguments_are_named():
         make_env("nope")
     with pytest.raises(ValueError, match="num_envs must be >= 1"):
         make_env("maniskill_pushcube", num_envs=0)
+    with pytest.raises(ValueError, match="cpu_backend must be one of \\('async', 'parallel'\\)"):
+        make_env("maniskill_pushcube", num_envs=2, cpu_backend="threads")
     with pytest.raises(NotImplementedError, match="no adapter for simulator 'pusht'"):
         make_env(TaskConfig(name="pusht", simulator="pusht"))
     with pytest.raises(ValueError, match="one env per process"):

@@ -21,8 +21,14 @@ def test_missing_vulkan_names_the_packages_to_install():
         "make_gym_env(load_task_config('maniskill_pushcube'), 1, torch.device('cpu'))\n"
     )
     # Point the Vulkan loader at no driver at all: what a machine without lavapipe looks like.
-    env = {**os.environ, "VK_ICD_FILENAMES": "/nonexistent/icd.json", "VK_DRIVER_FILES": "/nonexistent/icd.json"}
-    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    env = {
+        **os.environ,
+        "VK_ICD_FILENAMES": "/nonexistent/icd.json",
+        "VK_DRIVER_FILES": "/nonexistent/icd.json",
+    }
+    proc = subprocess.run(
+        [sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode != 0
     assert "mesa-vulkan-drivers" in proc.stderr
     assert "libvulkan1" in proc.stderr

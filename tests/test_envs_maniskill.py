@@ -6,10 +6,11 @@ import torch
 
 pytest.importorskip("mani_skill")
 
-from l1flow_rl.envs import make_env
-from l1flow_rl.envs.per_env import seeded_reset
+from l1flow_rl.envs import ManiSkillAsyncEnv, make_env
+from l1flow_rl.envs.per_env import render_frames, seeded_reset, sim_error_messages
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
+from torchrl.envs import ParallelEnv
 from torchrl.envs.utils import check_env_specs, step_mdp
 from torchrl.modules import MultiStepActorWrapper
 
@@ -92,6 +93,26 @@ def test_partial_reset_resets_only_the_masked_worker(state2):
     assert torch.equal(td["observation"][1], before[1])  # env 1 goes on where it was
     with pytest.raises(ValueError, match="got 1 seeds for 2"):
         seeded_reset(state2, td, [1])
+
+
+def test_two_workers_run_on_the_async_backend_and_render(state2):
+    assert isinstance(state2.base_env, ManiSkillAsyncEnv)
+    seeded_reset(state2, None, [1, 2])
+    frames = render_frames(state2)
+    assert frames.shape[0] == 2 and frames.shape[-1] == 3 and frames.dtype == torch.uint8
+    assert not torch.equal(frames[0], frames[1])  # each worker renders its own scene
+    assert sim_error_messages(state2) == [None, None]
+
+
+def test_parallel_backend_starts_the_same_seeded_episodes(state2):
+    parallel = make_env("maniskill_pushcube", num_envs=2, max_episode_steps=STEPS, cpu_backend="parallel")
+    try:
+        assert isinstance(parallel.base_env, ParallelEnv)
+        check_env_specs(parallel)
+        got = seeded_reset(parallel, None, [3, 4])["observation"]
+        assert torch.equal(got, seeded_reset(state2, None, [3, 4])["observation"])
+    finally:
+        parallel.close()
 
 
 class ChunkCounter(TensorDictModuleBase):

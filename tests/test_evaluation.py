@@ -4,12 +4,14 @@ metrics equal counts taken by hand, errors are recorded rather than fatal, video
 import json
 
 import gymnasium as gym
+import numpy as np
 import pytest
 import torch
 
 pytest.importorskip("mani_skill")
 
 from l1flow_rl.envs import history_transforms, make_env
+from l1flow_rl.envs.maniskill_async import ManiSkillAsyncEnv
 from l1flow_rl.envs.maniskill_env import ManiSkillEnv
 from tensordict.nn import TensorDictModule
 from torchrl.envs import Transform, TransformedEnv
@@ -39,6 +41,13 @@ def push_chunk(observation: torch.Tensor) -> torch.Tensor:
 
 def scripted_policy() -> TensorDictModule:
     return TensorDictModule(push_chunk, in_keys=["observation"], out_keys=["action_chunk"])
+
+
+def evaluate_then_close(env, episodes: int) -> dict:
+    try:
+        return evaluate(scripted_policy(), env, episodes=episodes, seed=0)
+    finally:
+        env.close()
 
 
 @pytest.fixture(scope="module")
@@ -128,10 +137,7 @@ class RaiseAtStep(Transform):
 def test_an_env_that_raises_is_recorded_and_evaluation_goes_on():
     env = make_env("maniskill_pushcube", max_episode_steps=STEPS)
     env.append_transform(RaiseAtStep(at=STEPS + 5))  # during the second episode
-    try:
-        result = evaluate(scripted_policy(), env, episodes=3, seed=0)
-    finally:
-        env.close()
+    result = evaluate_then_close(env, episodes=3)
     episodes = result["per_episode"]
     assert [e["seed"] for e in episodes] == [0, 1, 2]
     assert episodes[1]["error"] == "RuntimeError: transform failed on purpose"
@@ -166,16 +172,51 @@ class FlakyManiSkillEnv(ManiSkillEnv):
 
 def test_a_simulator_error_ends_that_episode_and_the_simulator_is_rebuilt():
     task = load_task_config("maniskill_pushcube", max_episode_steps=6)
-    env = TransformedEnv(FlakyManiSkillEnv(task), history_transforms("state", 2))
-    try:
-        result = evaluate(scripted_policy(), env, episodes=2, seed=0)
-    finally:
-        env.close()
+    result = evaluate_then_close(TransformedEnv(FlakyManiSkillEnv(task), history_transforms("state", 2)), 2)
     first, second = result["per_episode"]
     assert first["error"] == "RuntimeError: PhysX: simulation blew up"
     assert first["length"] == 2 and not first["success_once"]
     assert second["error"] is None and second["length"] == 6
     assert FlakyManiSkillEnv.sims_made == 2
+
+
+FAIL_SEED = 1
+
+
+class PhysxFailsOnSeed(gym.Wrapper):
+    """Raises at the third step of the episode seeded FAIL_SEED."""
+
+    def reset(self, **kwargs):
+        self.steps = 0
+        return self.env.reset(**kwargs)
+
+    def step(self, action):
+        self.steps += 1
+        seed = int(np.asarray(self.env.unwrapped._episode_seed).reshape(-1)[0])
+        if self.steps == 3 and seed == FAIL_SEED:
+            raise RuntimeError("PhysX: simulation blew up")
+        return self.env.step(action)
+
+
+class SeedFailingManiSkillEnv(ManiSkillEnv):
+    """Module-level, so that worker processes unpickle it by reference."""
+
+    def _make_sim(self):
+        return PhysxFailsOnSeed(super()._make_sim())
+
+
+def test_a_worker_whose_simulator_raises_is_rebuilt_while_the_other_goes_on():
+    task = load_task_config("maniskill_pushcube", max_episode_steps=6)
+    base = ManiSkillAsyncEnv(task, 2, worker_env=SeedFailingManiSkillEnv)
+    result = evaluate_then_close(TransformedEnv(base, history_transforms("state", 2)), 3)
+    episodes = result["per_episode"]
+    assert [e["seed"] for e in episodes] == [0, 1, 2]
+    # worker 1 fails in seed 1's episode and is rebuilt for seed 2's while worker 0 runs on
+    assert episodes[1]["error"] == "RuntimeError: PhysX: simulation blew up"
+    assert episodes[1]["length"] == 2 and not episodes[1]["success_once"]
+    assert [episodes[0]["error"], episodes[2]["error"]] == [None, None]
+    assert episodes[0]["length"] == episodes[2]["length"] == 6
+    assert result["errors"] == 1
 
 
 def test_video_of_the_first_episode(tmp_path):
