@@ -113,6 +113,7 @@ def measure(
     sides = {"raw": make_raw(), **{side: make() for side, make in adapters.items()}}
     if args.threads > 0:  # TorchRL's ParallelEnv resets this process's thread count when it starts
         torch.set_num_threads(args.threads)
+    threads = torch.get_num_threads()  # what the timed loops run with (closing a ParallelEnv resets it)
     block = args.steps // args.rounds
     rates: dict[str, list[float]] = {side: [] for side in sides}
     cpu_ms: dict[str, list[float]] = {side: [] for side in sides}
@@ -135,7 +136,7 @@ def measure(
         "raw_steps_per_s": round(raw, 1),
         "raw_main_process_cpu_ms_per_step": round(statistics.median(cpu_ms["raw"]), 3),
         "adapters": {},
-        "torch_threads": torch.get_num_threads(),
+        "torch_threads": threads,
     }
     line = f"{name:>12}: raw {raw:9.1f} steps/s ({row['raw_main_process_cpu_ms_per_step']:.2f} ms CPU here)"
     for side in adapters:

@@ -78,22 +78,22 @@ class _WorkerGymEnv(gym.Env):
         self.render_mode = "rgb_array" if env.render_enabled else None
 
     @staticmethod
-    def _obs_info(td: TensorDictBase) -> tuple[Any, dict[str, bool]]:
-        obs = td.get("observation")
-        obs = obs.numpy() if isinstance(obs, Tensor) else {k: v.numpy() for k, v in obs.items()}
-        return obs, {"success": bool(td.get("success")), "sim_error": bool(td.get("sim_error"))}
+    def _numpy(obs: Tensor | TensorDictBase) -> Any:
+        return obs.numpy() if isinstance(obs, Tensor) else {k: v.numpy() for k, v in obs.items()}
 
-    # ManiSkillEnv's own _reset/_step: EnvBase's checks and key bookkeeping would only cost time here.
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         if options:
             raise ValueError(f"reset options are not supported by the worker env, got {sorted(options)}")
-        return self._obs_info(self.env._reset(None, seed=None if seed is None else [seed]))
+        td = self.env._reset(None, seed=None if seed is None else [seed])  # its own reset: no checks needed
+        info = {"success": bool(td.get("success")), "sim_error": False}
+        return self._numpy(td.get("observation")), info
 
     def step(self, action: np.ndarray):
-        action = torch.as_tensor(np.asarray(action, dtype=np.float32))
-        td = self.env._step(TensorDict({"action": action}, batch_size=[]))
-        obs, info = self._obs_info(td)
-        return obs, float(td.get("reward")), bool(td.get("terminated")), bool(td.get("truncated")), info
+        obs, reward, terminated, truncated, success, sim_error = self.env.sim_step(
+            torch.as_tensor(np.asarray(action, dtype=np.float32)).unsqueeze(0)
+        )
+        info = {"success": success is not None and bool(success), "sim_error": sim_error}
+        return self._numpy(obs), float(reward), bool(terminated), bool(truncated), info
 
     def render_frames(self) -> np.ndarray:
         return self.env.render_frames().numpy()

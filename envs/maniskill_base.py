@@ -113,9 +113,8 @@ class ManiSkillEnvBase(EnvBase):
         value = torch.as_tensor(value).to(self.device)
         return value.squeeze(0) if not self.batch_size else value
 
-    def _flag(self, value: Any) -> Tensor:
-        value = torch.as_tensor(value, device=self.device).to(torch.bool).reshape(self._sim_envs, 1)
-        return self._unsim(value)
+    def _bools(self, value: Any) -> Tensor:
+        return torch.as_tensor(value, device=self.device).to(torch.bool).reshape(-1).expand(self._sim_envs)
 
     def _output(
         self,
@@ -128,20 +127,19 @@ class ManiSkillEnvBase(EnvBase):
     ) -> TensorDictBase:
         """The step tensordict; every value but ``obs`` has ``_sim_envs`` entries (``success=None``:
         the task has no success criterion, ``sim_error`` may be one bool for all envs)."""
-        n = self._sim_envs
-        if success is None:
-            success = torch.zeros(n, dtype=torch.bool)
-        terminated = torch.as_tensor(terminated, device=self.device).to(torch.bool).reshape(n)
-        truncated = torch.as_tensor(truncated, device=self.device).to(torch.bool).reshape(n)
+        terminated, truncated = self._bools(terminated), self._bools(truncated)
+        success = self._bools(False if success is None else success)
+        # one stack, then contiguous [*batch, 1] rows of it: this runs at every step, and each
+        # conversion costs time there
+        flags = torch.stack([terminated | truncated, terminated, truncated, success, self._bools(sim_error)])
+        flags = flags.reshape(5, *self.batch_size, 1)
+        reward = torch.as_tensor(reward, dtype=torch.float32).reshape(self._sim_envs, 1)
+        names = ("done", "terminated", "truncated", "success", "sim_error")
         return TensorDict(
             {
                 "observation": obs,
-                "reward": self._unsim(torch.as_tensor(reward, dtype=torch.float32).reshape(n, 1)),
-                "done": self._flag(terminated | truncated),
-                "terminated": self._flag(terminated),
-                "truncated": self._flag(truncated),
-                "success": self._flag(success),
-                "sim_error": self._flag(torch.as_tensor(sim_error, dtype=torch.bool).expand(n)),
+                "reward": self._unsim(reward),
+                **dict(zip(names, flags)),
             },
             batch_size=self.batch_size,
             device=self.device,

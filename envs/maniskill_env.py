@@ -167,11 +167,15 @@ class ManiSkillEnv(ManiSkillEnvBase):
     # -- EnvBase ---------------------------------------------------------------------------------
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get("action")
+        return self._output(*self.sim_step(action if self.batch_size else action.unsqueeze(0)))
+
+    def sim_step(self, action: Tensor) -> tuple[Any, Any, Any, Any, Any, bool]:
+        """One simulator step on a ``[num_envs or 1, A]`` action, without building a tensordict (a
+        worker process's path): observation (this env's layout), then reward, terminated,
+        truncated, success (or None) with a leading dim of ManiSkill's env count, and sim_error."""
         n = self._sim_envs
         if not self._broken:
-            action = tensordict.get("action")
-            if not self.batch_size:
-                action = action.unsqueeze(0)
             try:
                 obs, reward, terminated, truncated, info = self._gym_env.step(action)
             except Exception as err:  # a simulator failure ends these episodes; the next reset rebuilds
@@ -182,9 +186,9 @@ class ManiSkillEnv(ManiSkillEnvBase):
                     terminated = torch.zeros_like(torch.as_tensor(terminated))
                 self._last_obs = self._observation(obs)
                 success = info.get("success") if isinstance(info, dict) else None
-                return self._output(self._last_obs, reward, terminated, truncated, success, sim_error=False)
+                return self._last_obs, reward, terminated, truncated, success, False
         failed = torch.ones(n, dtype=torch.bool, device=self.device)
-        return self._output(self._last_obs, torch.zeros(n), ~failed, failed, None, sim_error=True)
+        return self._last_obs, torch.zeros(n), ~failed, failed, None, True
 
     def _reset(
         self, tensordict: TensorDictBase | None = None, *, seed: Any = None, **kwargs
