@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import copy
+import json
 import math
-import os
 import socket
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 import torch
-import torch.distributed as dist
-import torch.multiprocessing as mp
 from tensordict import TensorDict
 
 from l1flow_rl import L1FlowActor, L1FlowLoss
@@ -94,34 +95,56 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _ddp_worker(rank: int, world: int, port: int, out: dict) -> None:
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
-    dist.init_process_group("gloo", rank=rank, world_size=world)
-    torch.manual_seed(100 + rank)  # different initial weights: DDP must broadcast rank 0's
-    actor = _actor()
-    initial = torch.nn.utils.parameters_to_vector(actor.parameters()).detach().clone()
-    trainer = _trainer(actor=actor)
-    assert trainer.distributed
-    for step in range(4):
-        trainer.train_step(_batch(16, seed=10 * step + rank))  # each rank sees other data
-    final = torch.nn.utils.parameters_to_vector(trainer.actor.parameters()).detach()
-    gathered = [torch.empty_like(final) for _ in range(world)]
-    dist.all_gather(gathered, final)
-    init_gathered = [torch.empty_like(initial) for _ in range(world)]
-    dist.all_gather(init_gathered, initial)
-    if rank == 0:
-        out["max_replica_gap"] = max(float((g - gathered[0]).abs().max()) for g in gathered)
-        out["moved"] = float((final - init_gathered[0]).abs().max())
-        out["init_gap"] = float((init_gathered[1] - init_gathered[0]).abs().max())
-    dist.destroy_process_group()
+# Launched with torchrun in a fresh interpreter, as users launch DDP training: this keeps the test
+# independent of the multiprocessing state earlier tests leave behind (worker servers, start methods).
+_DDP_SCRIPT = """
+import json, sys
+import torch
+import torch.distributed as dist
+sys.path.insert(0, {tests_dir!r})
+from test_trainer import _actor, _batch, _trainer
+
+dist.init_process_group("gloo")
+rank, world = dist.get_rank(), dist.get_world_size()
+torch.manual_seed(100 + rank)  # different initial weights: DDP must broadcast rank 0's
+actor = _actor()
+initial = torch.nn.utils.parameters_to_vector(actor.parameters()).detach().clone()
+trainer = _trainer(actor=actor)
+assert trainer.distributed
+for step in range(4):
+    trainer.train_step(_batch(16, seed=10 * step + rank))  # each rank sees other data
+final = torch.nn.utils.parameters_to_vector(trainer.actor.parameters()).detach()
+finals = [torch.empty_like(final) for _ in range(world)]
+dist.all_gather(finals, final)
+initials = [torch.empty_like(initial) for _ in range(world)]
+dist.all_gather(initials, initial)
+if rank == 0:
+    with open({out!r}, "w") as f:
+        json.dump({{
+            "max_replica_gap": max(float((g - finals[0]).abs().max()) for g in finals),
+            "moved": float((final - initials[0]).abs().max()),
+            "init_gap": float((initials[1] - initials[0]).abs().max()),
+        }}, f)
+dist.destroy_process_group()
+"""
 
 
-def test_ddp_two_processes_on_gloo_stay_in_sync():
-    port = _free_port()
-    with mp.Manager() as manager:
-        out = manager.dict()
-        mp.spawn(_ddp_worker, args=(2, port, out), nprocs=2, join=True)
-        result = dict(out)
+def test_ddp_two_processes_on_gloo_stay_in_sync(tmp_path):
+    out = tmp_path / "ddp.json"
+    script = tmp_path / "ddp_check.py"
+    script.write_text(_DDP_SCRIPT.format(tests_dir=str(Path(__file__).parent), out=str(out)))
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--nproc_per_node=2",
+        "--master_addr=127.0.0.1",
+        f"--master_port={_free_port()}",
+        str(script),
+    ]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    result = json.loads(out.read_text())
     assert result["init_gap"] > 0  # the replicas were built differently...
     assert result["max_replica_gap"] == 0.0  # ...and DDP made and kept them identical
     assert result["moved"] > 0  # while training actually changed the weights
