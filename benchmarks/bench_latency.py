@@ -20,6 +20,7 @@ runs single-threaded anyway.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -34,35 +35,27 @@ from tensordict import TensorDict
 
 from l1flow_rl import DiffusionLoss, FlowMatchingLoss, L1FlowActor, L1FlowLoss, RegressionLoss
 from l1flow_rl.config import PolicyConfig
-from l1flow_rl.flow import DDIMSampler, DDPMSampler, DirectSampler, TwoStepSampler, VelocityEulerSampler
+from l1flow_rl.workspace.build import build_actor as build_policy_actor
 
 OBS_DIM, ACTION_DIM, BATCH = 35, 4, 256
 
 #: name -> (sampler, loss that trains a network for it)
+# method -> (sampler name and options in the policy config, loss)
 METHODS = {
-    "l1flow_2nfe": (lambda: TwoStepSampler(0.5), L1FlowLoss),
-    "flow_euler10": (lambda: VelocityEulerSampler(10), FlowMatchingLoss),
-    "ddim16": (lambda: DDIMSampler(16), DiffusionLoss),
-    "ddpm100": (lambda: DDPMSampler(), DiffusionLoss),
-    "regression": (lambda: DirectSampler(), RegressionLoss),
+    "l1flow_2nfe": (("two_step", {"t_first": 0.5}), L1FlowLoss),
+    "flow_euler10": (("velocity_euler", {"steps": 10}), FlowMatchingLoss),
+    "ddim16": (("ddim", {"steps": 16}), DiffusionLoss),
+    "ddpm100": (("ddpm", {}), DiffusionLoss),
+    "regression": (("direct", {}), RegressionLoss),
 }
 TRAINED = ("l1flow_2nfe", "flow_euler10", "ddpm100", "regression")  # DDIM trains like DDPM
 
 
 def build_actor(name: str, device: torch.device) -> L1FlowActor:
-    p = PolicyConfig()
-    return L1FlowActor.for_state(
-        OBS_DIM,
-        ACTION_DIM,
-        obs_horizon=p.obs_horizon,
-        pred_horizon=p.pred_horizon,
-        action_steps=p.action_steps,
-        down_dims=tuple(p.down_dims),
-        timestep_embed_dim=p.timestep_embed_dim,
-        kernel_size=p.kernel_size,
-        n_groups=p.n_groups,
-        sampler=METHODS[name][0](),
-    ).to(device)
+    """The default policy config's network, built as the train job builds it, with ``name``'s sampler."""
+    sampler, options = METHODS[name][0]
+    cfg = dataclasses.replace(PolicyConfig(), sampler=sampler, sampler_kwargs=options)
+    return build_policy_actor(dataclasses.asdict(cfg), {"state": (OBS_DIM,)}, ACTION_DIM).to(device)
 
 
 def timed(fn: Callable[[], None], device: torch.device) -> tuple[float, float]:
