@@ -28,7 +28,7 @@ from pathlib import Path
 
 import torch
 from l1flow_rl.envs import make_env
-from l1flow_rl.envs.maniskill_env import make_gym_env
+from l1flow_rl.envs.maniskill.env import make_gym_env
 
 from l1flow_rl.config import TaskConfig, load_task_config
 

@@ -29,9 +29,9 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     ),
     "eval": ("l1flow_rl.evaluation", "run_eval", "evaluate a checkpoint: eval.json (+ video on request)"),
     "demos": (
-        "l1flow_rl.data.maniskill_demos",
+        "l1flow_rl.experts.cli",
         "run_demos",
-        "generate ManiSkill demonstrations into data_dir",
+        "make demonstrations with the task's expert into data_dir",
     ),
     "toy": ("l1flow_rl.toy", "run_toy", "the multi-modality demonstration (paper Fig. 2): toy.png, toy.json"),
 }

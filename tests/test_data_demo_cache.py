@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 from l1flow_rl.config import TaskConfig
-from l1flow_rl.data.maniskill_demos import MAX_BATCH, MIN_BATCH, _batch_sizes, _Generator, _planned_chain
+from l1flow_rl.experts.maniskill.demos import MAX_BATCH, MIN_BATCH, _batch_sizes, _Generator, _planned_chain
 
 
 def test_batch_sizes_split_rounds_over_workers():

@@ -13,13 +13,9 @@ import torch
 pytest.importorskip("mani_skill")
 
 from l1flow_rl.config import TaskConfig, load_task_config
-from l1flow_rl.data import (
-    DemoGenerationError,
-    ensure_demos,
-    load_episodes,
-    make_chunk_buffer,
-    maniskill_demos,
-)
+from l1flow_rl.data import load_episodes, make_chunk_buffer
+from l1flow_rl.experts import DemoGenerationError, ensure_demos
+from l1flow_rl.experts.maniskill import demos as maniskill_demos
 
 pytestmark = pytest.mark.maniskill
 
@@ -131,8 +127,8 @@ def test_a_planner_that_always_fails_ends_with_a_clear_error(tmp_path):
 
 
 def test_non_maniskill_task_is_refused(tmp_path):
-    with pytest.raises(DemoGenerationError, match="only ManiSkill tasks"):
-        ensure_demos(TaskConfig(name="lift", simulator="robosuite", env_id="Lift"), 1, tmp_path)
+    with pytest.raises(DemoGenerationError, match="no expert makes demonstrations for simulator 'nosuchsim'"):
+        ensure_demos(TaskConfig(name="x", simulator="nosuchsim", env_id="X"), 1, tmp_path)
 
 
 @pytest.mark.slow

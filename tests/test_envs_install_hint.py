@@ -17,7 +17,7 @@ def test_missing_vulkan_names_the_packages_to_install():
     script = (
         "import torch\n"
         "from l1flow_rl.config import load_task_config\n"
-        "from l1flow_rl.envs.maniskill_env import make_gym_env\n"
+        "from l1flow_rl.envs.maniskill.env import make_gym_env\n"
         "make_gym_env(load_task_config('maniskill_pushcube'), 1, torch.device('cpu'))\n"
     )
     # Point the Vulkan loader at no driver at all: what a machine without lavapipe looks like.

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import torch
-from l1flow_rl.envs.maniskill_obs import flatten_maniskill_obs
+from l1flow_rl.envs.maniskill.obs import flatten_maniskill_obs
 
 
 def _obs(*batch: int) -> dict:

@@ -11,8 +11,8 @@ import torch
 pytest.importorskip("mani_skill")
 
 from l1flow_rl.envs import history_transforms, make_env
-from l1flow_rl.envs.maniskill_async import ManiSkillAsyncEnv
-from l1flow_rl.envs.maniskill_env import ManiSkillEnv
+from l1flow_rl.envs.maniskill.async_env import ManiSkillAsyncEnv
+from l1flow_rl.envs.maniskill.env import ManiSkillEnv
 from tensordict.nn import TensorDictModule
 from torchrl.envs import Transform, TransformedEnv
 from torchrl.modules import MultiStepActorWrapper
@@ -172,7 +172,7 @@ class FlakyManiSkillEnv(ManiSkillEnv):
 
 def test_a_simulator_error_ends_that_episode_and_the_simulator_is_rebuilt():
     task = load_task_config("maniskill_pushcube", max_episode_steps=6)
-    result = evaluate_then_close(TransformedEnv(FlakyManiSkillEnv(task), history_transforms("state", 2)), 2)
+    result = evaluate_then_close(TransformedEnv(FlakyManiSkillEnv(task), history_transforms({"observation": 1}, 2)), 2)
     first, second = result["per_episode"]
     assert first["error"] == "RuntimeError: PhysX: simulation blew up"
     assert first["length"] == 2 and not first["success_once"]
@@ -208,7 +208,7 @@ class SeedFailingManiSkillEnv(ManiSkillEnv):
 def test_a_worker_whose_simulator_raises_is_rebuilt_while_the_other_goes_on():
     task = load_task_config("maniskill_pushcube", max_episode_steps=6)
     base = ManiSkillAsyncEnv(task, 2, worker_env=SeedFailingManiSkillEnv)
-    result = evaluate_then_close(TransformedEnv(base, history_transforms("state", 2)), 3)
+    result = evaluate_then_close(TransformedEnv(base, history_transforms({"observation": 1}, 2)), 3)
     episodes = result["per_episode"]
     assert [e["seed"] for e in episodes] == [0, 1, 2]
     # worker 1 fails in seed 1's episode and is rebuilt for seed 2's while worker 0 runs on

@@ -6,23 +6,20 @@
     batch = rb.sample()                             # "observation" [64, 2, ...], "action_chunk" [64, 16, A]
     fit_normalizers(actor, eps)                     # limits (or gaussian) statistics into the actor
 
-ManiSkill demonstrations are generated offline with :func:`ensure_demos` (``l1flow-rl demos``).
+Demonstrations are made by the experts in :mod:`l1flow_rl.experts` (``l1flow-rl demos``).
 """
 
 from l1flow_rl.data.buffer import make_chunk_buffer
 from l1flow_rl.data.chunks import ChunkLayout, ChunkStorage, ChunkWindowSampler
 from l1flow_rl.data.episodes import EpisodeDataError
 from l1flow_rl.data.loading import episodes_metadata, load_episodes, open_episode_file
-from l1flow_rl.data.maniskill_demos import DemoGenerationError, ensure_demos
 from l1flow_rl.data.normalization import fit_normalizers
 
 __all__ = [
     "ChunkLayout",
     "ChunkStorage",
     "ChunkWindowSampler",
-    "DemoGenerationError",
     "EpisodeDataError",
-    "ensure_demos",
     "episodes_metadata",
     "fit_normalizers",
     "load_episodes",

@@ -26,32 +26,19 @@ from l1flow_rl.workspace.checkpoint import (
     save_checkpoint,
     set_rng_state,
 )
+from l1flow_rl.workspace.distributed import init_distributed, resolve_device
+from l1flow_rl.workspace.evaluator import PeriodicEvaluator
+from l1flow_rl.workspace.logging import make_logger
 from l1flow_rl.workspace.report import format_summary, save_plots
 from l1flow_rl.workspace.trainer import Trainer
 
 __all__ = ["resolve_device", "run_train"]
 
 
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device={name!r} but CUDA is not available on this machine; use device=cpu")
-    return torch.device(name)
-
-
 def _seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed)
     torch.manual_seed(seed)
-
-
-def _init_distributed() -> tuple[int, int]:
-    """(rank, world_size); initialises the process group when launched by torchrun."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world > 1 and not dist.is_initialized():
-        dist.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
-    return (dist.get_rank(), world) if world > 1 else (0, 1)
 
 
 def _obs_shapes(episodes) -> dict[str, tuple[int, ...]]:
@@ -61,46 +48,12 @@ def _obs_shapes(episodes) -> dict[str, tuple[int, ...]]:
     return {k: tuple(v.shape[1:]) for k, v in obs.items()}
 
 
-class _Evaluator:
-    """Creates the evaluation env once and reuses it; evaluation never touches the training RNG."""
-
-    def __init__(self, cfg: DictConfig, device: torch.device) -> None:
-        self.cfg, self.device, self.env = cfg, device, None
-
-    def __call__(self, actor, step: int, video_dir: Path | None = None) -> dict[str, Any]:
-        from l1flow_rl.envs import make_env
-        from l1flow_rl.evaluation import evaluate
-
-        if self.env is None:
-            task = OmegaConf.to_object(self.cfg.task)
-            self.env = make_env(
-                task,
-                num_envs=self.cfg.eval.num_envs,
-                device=str(self.device),
-                obs_horizon=self.cfg.policy.obs_horizon,
-            )
-        with torch.random.fork_rng(devices=[]), torch.no_grad():
-            metrics = evaluate(
-                actor,
-                self.env,
-                episodes=self.cfg.eval.episodes,
-                seed=self.cfg.eval.seed,
-                deterministic=self.cfg.eval.deterministic,
-                video_dir=video_dir,
-                video_episodes=self.cfg.eval.video_episodes if video_dir is not None else 0,
-            )
-        metrics["step"] = step
-        return metrics
-
-    def close(self) -> None:
-        if self.env is not None and not self.env.is_closed:
-            self.env.close()
-
-
 def run_train(cfg: DictConfig) -> int:
-    from l1flow_rl.data import ensure_demos, fit_normalizers, load_episodes, make_chunk_buffer
+    from l1flow_rl.data import fit_normalizers, load_episodes, make_chunk_buffer
+    from l1flow_rl.experts import ensure_demos
+    from l1flow_rl.experts.cli import demo_options
 
-    rank, world = _init_distributed()
+    rank, world = init_distributed()
     device = resolve_device(cfg.device)
     if device.type == "cuda" and world > 1:
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
@@ -126,13 +79,13 @@ def run_train(cfg: DictConfig) -> int:
     # -- data --------------------------------------------------------------------------------
     t_start = time.perf_counter()
     if rank == 0:
-        dataset = ensure_demos(
-            OmegaConf.to_object(cfg.task),
-            cfg.demos.num,
-            cfg.data_dir,
-            seed=cfg.demos.seed,
-            max_consecutive_failures=cfg.demos.max_consecutive_failures,
-        )
+        task = OmegaConf.to_object(cfg.task)
+        if cfg.data.path:
+            dataset = Path(cfg.data.path)
+        else:
+            dataset = ensure_demos(
+                task, cfg.demos.num, cfg.data_dir, seed=cfg.demos.seed, **demo_options(cfg, task)
+            )
         paths = [str(dataset)]
     else:
         paths = [""]
@@ -150,7 +103,7 @@ def run_train(cfg: DictConfig) -> int:
         pred_horizon=pcfg.pred_horizon,
         batch_size=tcfg.batch_size,
         seed=cfg.seed + rank,
-        action_pad="delta" if cfg.task.delta_control else "repeat",
+        action_pad="delta" if cfg.task.control == "delta" else "repeat",
         prefetch=tcfg.prefetch or None,
     )
 
@@ -190,8 +143,8 @@ def run_train(cfg: DictConfig) -> int:
     if is_main:
         run_dir.mkdir(parents=True, exist_ok=True)
         OmegaConf.save(cfg, run_dir / "config.yaml")
-        logger = _make_logger(tcfg.logger, run_dir, logger_state)
-    evaluator = _Evaluator(cfg, device) if is_main and cfg.eval.episodes > 0 else None
+        logger = make_logger(tcfg.logger, run_dir, logger_state)
+    evaluator = PeriodicEvaluator(cfg, device) if is_main and cfg.eval.episodes > 0 else None
 
     def checkpoint_state() -> dict[str, Any]:
         state = trainer.state_dict()
@@ -305,11 +258,3 @@ def _set_buffer_rng(buffer, state: torch.Tensor) -> None:
 def _headline(result: dict[str, Any]) -> dict[str, Any]:
     keys = ("step", "success_once", "success_at_end", "return", "episode_length", "episodes")
     return {k: result[k] for k in keys if k in result}
-
-
-def _make_logger(kind: str, run_dir: Path, state: dict | None):
-    from torchrl.record.loggers import get_logger
-
-    if kind not in ("csv", "tensorboard", "wandb"):
-        raise ValueError(f"train.logger={kind!r}; expected csv, tensorboard or wandb")
-    return get_logger(kind, logger_name=str(run_dir / "logs"), experiment_name="train", state_dict=state)

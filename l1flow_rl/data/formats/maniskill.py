@@ -112,7 +112,7 @@ class ManiSkillFile(EpisodeFile):
                 as_tensor(node[()], self.path, episode, key), steps, self.path, episode, key, extra=1
             )
             return check_finite(obs.float(), self.path, episode, key)
-        from l1flow_rl.envs.maniskill_obs import flatten_maniskill_obs
+        from l1flow_rl.envs.maniskill.obs import flatten_maniskill_obs
 
         wanted = {g: node[g] for g in ("agent", "extra", "sensor_data") if g in node}
         raw = _read_group(wanted, self.path, episode, key)

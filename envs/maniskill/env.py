@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 import torch
-from l1flow_rl.envs.maniskill_base import ManiSkillEnvBase
-from l1flow_rl.envs.maniskill_obs import flatten_maniskill_obs
+from l1flow_rl.envs.maniskill.base import ManiSkillEnvBase
+from l1flow_rl.envs.maniskill.obs import flatten_maniskill_obs
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
@@ -20,7 +20,7 @@ from l1flow_rl.config import TaskConfig
 
 __all__ = ["ManiSkillEnv", "make_gym_env"]
 
-INSTALL_HINT = "ManiSkill is not installed: pip install 'l1flow-rl[maniskill]'"
+from l1flow_rl.envs.maniskill import INSTALL_HINT
 
 
 def _import_maniskill():
@@ -36,7 +36,7 @@ def make_gym_env(task: TaskConfig, num_envs: int, device: torch.device, *, rende
     """The raw ManiSkill gymnasium env that :class:`ManiSkillEnv` wraps (physx_cpu on the CPU,
     physx_cuda on ``device``), configured from the task; also the baseline in the benchmarks."""
     gym = _import_maniskill()
-    kwargs: dict[str, Any] = dict(task.env_kwargs)
+    kwargs: dict[str, Any] = dict(task.env)
     if task.obs_mode == "rgb":
         kwargs.setdefault("sensor_configs", {"width": task.image_size, "height": task.image_size})
     if not torch.cuda.is_available():

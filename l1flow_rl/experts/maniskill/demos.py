@@ -1,8 +1,8 @@
 """ManiSkill demonstrations made offline (``l1flow-rl demos``), cached and resumable.
 
-Batches of seeds go to a worker process (:mod:`l1flow_rl.data._plan_worker`) that runs ManiSkill's
-motion-planning solution (it records ``pd_joint_pos``) and replays the successes with ManiSkill's
-replay tool into the task's observation and control mode, recording rewards. Under ``DATA_DIR``::
+Batches of seeds go to a worker process (:mod:`l1flow_rl.experts.maniskill._plan_worker`) that runs
+ManiSkill's motion-planning solution (it records ``pd_joint_pos``) and replays the successes with
+ManiSkill's replay tool into the task's observation and control mode, recording rewards. Under ``DATA_DIR``::
 
     maniskill/<env_id>/planned/seeds_<a>-<b>.{h5,json,attempts.json}       planner output, any mode
     maniskill/<env_id>/<obs>.<control>.<reward>/seeds_<a>-<b>.{h5,json}    replayed batches
@@ -37,9 +37,10 @@ from pathlib import Path
 import h5py
 
 from l1flow_rl.config import TaskConfig
-from l1flow_rl.data._plan_worker import ATTEMPT_MARK, NO_SOLUTION_EXIT, READY_MARK
+from l1flow_rl.experts.maniskill._plan_worker import ATTEMPT_MARK, NO_SOLUTION_EXIT, READY_MARK
+from l1flow_rl.experts.registry import DemoGenerationError
 
-__all__ = ["DemoGenerationError", "dataset_path", "ensure_demos", "run_demos"]
+__all__ = ["dataset_path", "ensure_maniskill_demos"]
 
 _BATCH = re.compile(r"seeds_(\d+)-(\d+)\.attempts\.json$")
 #: Most seeds per worker process: big enough to amortise its ~10 s start, small enough to resume cheaply.
@@ -48,10 +49,6 @@ MAX_BATCH = 25
 MIN_BATCH = 8
 #: Seconds a worker may take to start (imports, Vulkan) before its first seed.
 WORKER_START_S = 240
-
-
-class DemoGenerationError(RuntimeError):
-    """Demonstrations could not be made (planner keeps failing, worker crashed, unsupported task)."""
 
 
 @dataclass
@@ -74,7 +71,7 @@ def _mode_name(task) -> str:
 
 
 def dataset_path(task: TaskConfig, num: int, data_dir: str | os.PathLike, seed: int = 0) -> Path:
-    """Where :func:`ensure_demos` puts (or finds) ``num`` demonstrations of ``task``."""
+    """Where :func:`ensure_maniskill_demos` puts (or finds) ``num`` demonstrations of ``task``."""
     return (
         Path(data_dir) / "maniskill" / task.env_id / _mode_name(task) / f"{task.env_id}.seed{seed}.n{num}.h5"
     )
@@ -153,7 +150,7 @@ class _Worker:
         env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
         with open(log, "w") as log_file:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "l1flow_rl.data._plan_worker", *args],
+                [sys.executable, "-m", "l1flow_rl.experts.maniskill._plan_worker", *args],
                 stdout=subprocess.PIPE,
                 stderr=log_file,
                 text=True,
@@ -337,7 +334,7 @@ class _Generator:
                         new_id = len(episodes)
                         src.copy(src[f"traj_{ep['episode_id']}"], out, f"traj_{new_id}")
                         episodes.append({**ep, "episode_id": new_id})
-        info = {"env_info": env_info, "episodes": episodes, "source": "l1flow_rl.data.maniskill_demos"}
+        info = {"env_info": env_info, "episodes": episodes, "source": "l1flow_rl.experts.maniskill.demos"}
         tmp_json.write_text(json.dumps(info, indent=1))
         os.replace(tmp_json, target.with_suffix(".json"))
         os.replace(tmp_h5, target)  # the h5 appears last: its presence means the pair is complete
@@ -357,7 +354,7 @@ def _batch_sizes(
     return [base + (i < extra) for i in range(parts)]
 
 
-def ensure_demos(
+def ensure_maniskill_demos(
     task: TaskConfig,
     num: int,
     data_dir: str | os.PathLike,
@@ -385,7 +382,7 @@ def ensure_demos(
 
     Example:
         >>> from l1flow_rl.config import load_task_config
-        >>> path = ensure_demos(load_task_config("maniskill_pushcube"), 3, "data")  # doctest: +SKIP
+        >>> path = ensure_maniskill_demos(load_task_config("maniskill_pushcube"), 3, "data")  # doctest: +SKIP
     """
     _check_task(task, num, max_consecutive_failures)
     workers = workers or max(1, min(4, os.cpu_count() or 1))
@@ -441,33 +438,3 @@ def ensure_demos(
                 except BaseException:
                     gen.stop.set()  # end the other workers too; their batches are not committed
                     raise
-
-
-def run_demos(cfg) -> int:
-    """``l1flow-rl demos``: make ``cfg.demos.num`` demonstrations of ``cfg.task`` under ``cfg.data_dir``."""
-    from omegaconf import DictConfig, OmegaConf
-
-    task = OmegaConf.to_object(cfg.task) if isinstance(cfg.task, DictConfig) else cfg.task
-    start = time.perf_counter()
-    try:
-        path = ensure_demos(
-            task,
-            int(cfg.demos.num),
-            cfg.data_dir,
-            seed=int(cfg.demos.seed),
-            max_consecutive_failures=int(cfg.demos.max_consecutive_failures),
-        )
-    except DemoGenerationError as err:
-        print(f"l1flow-rl demos: {err}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(
-            "l1flow-rl demos: interrupted; finished batches are kept, run it again to resume", file=sys.stderr
-        )
-        return 130
-    print(
-        f"{cfg.demos.num} demonstrations of {task.env_id} ready in {time.perf_counter() - start:.1f} s",
-        file=sys.stderr,
-    )
-    print(path)
-    return 0

@@ -1,6 +1,6 @@
 """Subprocess entry for one batch of ManiSkill demonstrations: plan, then replay into the target modes.
 
-    python -m l1flow_rl.data._plan_worker --env-id PushCube-v1 --work-dir TMP \
+    python -m l1flow_rl.experts.maniskill._plan_worker --env-id PushCube-v1 --work-dir TMP \
         --first-seed 0 --num-seeds 20 --obs-mode state --control-mode pd_ee_delta_pos
 
 Stage 1 (with ``--num-seeds``) runs ManiSkill's motion-planning solution on each seed and writes the
@@ -60,7 +60,7 @@ def _plan(env_id: str, work_dir: Path, first_seed: int, num_seeds: int, attempt_
         trajectory_name="plan",
         save_video=False,
         source_type="motionplanning",
-        source_desc="ManiSkill's motion planning solution, run by l1flow_rl.data._plan_worker",
+        source_desc="ManiSkill's motion planning solution, run by l1flow_rl.experts.maniskill._plan_worker",
         record_reward=False,
         save_on_reset=False,
     )

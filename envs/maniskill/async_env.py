@@ -2,7 +2,7 @@
 
 The workers run gymnasium's ``AsyncVectorEnv`` (autoreset off: its ``SAME_STEP`` mode breaks on
 ManiSkill's reset info, and resets here are per env and seeded), each around an unbatched
-:class:`~l1flow_rl.envs.maniskill_env.ManiSkillEnv`, so that observations, seeds and simulator
+:class:`~l1flow_rl.envs.maniskill.env.ManiSkillEnv`, so that observations, seeds and simulator
 error handling are those of the in-process adapter. TorchRL's ``ParallelEnv`` does the same job
 (``make_env(..., cpu_backend="parallel")``) but spent ~4.5 ms of this process's CPU per batched
 step here, more than a physx_cpu step; ``AsyncVectorEnv`` moves flat numpy observations through
@@ -19,8 +19,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 import torch
-from l1flow_rl.envs.maniskill_base import ManiSkillEnvBase
-from l1flow_rl.envs.maniskill_env import INSTALL_HINT, ManiSkillEnv
+from l1flow_rl.envs.maniskill.base import ManiSkillEnvBase
+from l1flow_rl.envs.maniskill.env import INSTALL_HINT, ManiSkillEnv
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
@@ -39,8 +39,8 @@ _WORKER_PRELOAD = [
     "torchrl.envs",
     "gymnasium.vector",
     "mani_skill.envs",
-    "l1flow_rl.envs.maniskill_env",
-    "l1flow_rl.envs.maniskill_async",
+    "l1flow_rl.envs.maniskill.env",
+    "l1flow_rl.envs.maniskill.async_env",
 ]
 
 
@@ -124,7 +124,7 @@ class ManiSkillAsyncEnv(ManiSkillEnvBase):
     """``num_envs`` physx_cpu ManiSkill envs, one per worker process, as one TorchRL env of batch
     size ``[num_envs]`` on the CPU.
 
-    Same outputs as :class:`~l1flow_rl.envs.maniskill_env.ManiSkillEnv` (``"observation"``,
+    Same outputs as :class:`~l1flow_rl.envs.maniskill.env.ManiSkillEnv` (``"observation"``,
     ``"reward"``, done flags, ``"success"``, ``"sim_error"``), same ``reset(seed=...)`` (one seed
     per env being reset; a ``"_reset"`` mask resets only those envs, the others go on), and the
     same simulator-error handling, each worker on its own: a worker whose simulator raised ends

@@ -18,8 +18,8 @@ __all__ = ["ManiSkillEnvBase"]
 
 
 class ManiSkillEnvBase(EnvBase):
-    """Base of :class:`~l1flow_rl.envs.maniskill_env.ManiSkillEnv` (the simulator in this process)
-    and :class:`~l1flow_rl.envs.maniskill_async.ManiSkillAsyncEnv` (one simulator per worker
+    """Base of :class:`~l1flow_rl.envs.maniskill.env.ManiSkillEnv` (the simulator in this process)
+    and :class:`~l1flow_rl.envs.maniskill.async_env.ManiSkillAsyncEnv` (one simulator per worker
     process). Subclasses hold ``_sim_envs`` envs whose values arrive with a leading dim of that size,
     and call :meth:`_make_specs` once they know the observation and action shapes."""
 

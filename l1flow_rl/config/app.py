@@ -1,0 +1,33 @@
+"""The composed config of every ``l1flow-rl`` sub-command (``configs/config.yaml``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from l1flow_rl.config.data import DataConfig, DemosConfig
+from l1flow_rl.config.evaluation import EvalConfig
+from l1flow_rl.config.policy import PolicyConfig
+from l1flow_rl.config.task import TaskConfig
+from l1flow_rl.config.toy import ToyConfig
+from l1flow_rl.config.train import TrainConfig
+
+__all__ = ["AppConfig"]
+
+
+@dataclass
+class AppConfig:
+    """One field per group or setting; each group's schema lives in its own module."""
+
+    task: TaskConfig = field(default_factory=TaskConfig)
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    demos: DemosConfig = field(default_factory=DemosConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    toy: ToyConfig = field(default_factory=ToyConfig)
+    data_dir: str = "data"
+    run_dir: str = "runs/default"
+    checkpoint: str | None = None
+    resume: bool = False
+    seed: int = 0
+    device: str = "auto"  # auto | cpu | cuda

@@ -1,0 +1,29 @@
+"""The policy group (``configs/policy/*.yaml``): the method (loss + sampler) and the shared UNet."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+__all__ = ["PolicyConfig"]
+
+
+@dataclass
+class PolicyConfig:
+    """Method and network. ``loss`` and ``sampler`` pick the method; the rest is the shared UNet."""
+
+    name: str = "l1flow"
+    loss: str = "l1flow"  # l1flow | flow_matching | diffusion | regression
+    sampler: str = "two_step"  # two_step | euler | velocity_euler | ddpm | ddim | direct
+    sampler_kwargs: dict = field(default_factory=dict)
+    loss_kwargs: dict = field(default_factory=dict)
+    obs_horizon: int = 2
+    pred_horizon: int = 16
+    action_steps: int = 8
+    down_dims: list[int] = field(default_factory=lambda: [64, 128, 256])
+    timestep_embed_dim: int = 64
+    kernel_size: int = 5
+    n_groups: int = 8
+    normalizer: str = "limits"  # actions: limits | gaussian | identity
+    # Observations: limits blows up near-constant state dims (a 0.003-wide range scaled to [-1, 1]),
+    # so states pass through raw by default, as in ManiSkill's baseline.
+    obs_normalizer: str = "identity"  # limits | gaussian | identity

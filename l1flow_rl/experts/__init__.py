@@ -1,0 +1,34 @@
+"""Demonstration sources (scripted experts and planners), registered per simulator.
+
+    from l1flow_rl.experts import ensure_demos
+    path = ensure_demos(load_task_config("maniskill_pushcube"), num=100, data_dir="data")
+
+The data layer (:mod:`l1flow_rl.data`) reads what these write; it does not know how they were made.
+"""
+
+from l1flow_rl.experts.registry import (
+    DemoGenerationError,
+    ExpertSpec,
+    ensure_demos,
+    get_expert,
+    register_expert,
+    registered_experts,
+)
+
+__all__ = [
+    "DemoGenerationError",
+    "ExpertSpec",
+    "ensure_demos",
+    "get_expert",
+    "register_expert",
+    "registered_experts",
+    "run_demos",
+]
+
+
+def __getattr__(name: str):
+    if name == "run_demos":
+        from l1flow_rl.experts.cli import run_demos
+
+        return run_demos
+    raise AttributeError(f"module 'l1flow_rl.experts' has no attribute {name!r}")

@@ -1,0 +1,22 @@
+"""ManiSkill's own motion-planning solutions as the expert, replayed into the task's observation and
+control mode with rewards (see :mod:`l1flow_rl.experts.maniskill.demos`)."""
+
+from l1flow_rl.experts.registry import ExpertSpec, register_expert
+
+__all__ = ["EXPERT"]
+
+
+def _make(task, num, data_dir, *, seed=0, **options):
+    from l1flow_rl.experts.maniskill.demos import ensure_maniskill_demos
+
+    return ensure_maniskill_demos(task, num, data_dir, seed=seed, **options)
+
+
+EXPERT = register_expert(
+    ExpertSpec(
+        simulator="maniskill",
+        make=_make,
+        description="ManiSkill motion planning (mani_skill.examples.motionplanning), replayed with rewards",
+        options=("max_consecutive_failures", "attempt_timeout", "workers", "progress"),
+    )
+)
