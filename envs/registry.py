@@ -79,6 +79,10 @@ class SimulatorSpec:
         obs_modes: the ``TaskConfig.obs_mode`` values it supports.
         success_key: the output entry that holds its success signal.
         options: extra keyword arguments its factory accepts (validated at config time).
+        episode_metrics: extra per-episode metrics the evaluator reports (mean and 95 % interval
+            over episodes): ``name -> (reduction, step entry)``, reduction one of ``"max"``,
+            ``"sum"``, ``"last"``, ``"any"`` over the episode's steps; e.g. PushT's Diffusion Policy
+            score ``{"score": ("max", "reward")}``.
     """
 
     name: str
@@ -89,6 +93,7 @@ class SimulatorSpec:
     obs_modes: tuple[str, ...] = ("state",)
     success_key: NestedKey = "success"
     options: tuple[str, ...] = field(default=())
+    episode_metrics: Mapping[str, tuple[str, NestedKey]] = field(default_factory=dict)
 
     def is_installed(self) -> bool:
         return all(importlib.util.find_spec(m) is not None for m in self.requires)

@@ -49,9 +49,8 @@ def _obs_shapes(episodes) -> dict[str, tuple[int, ...]]:
 
 
 def run_train(cfg: DictConfig) -> int:
-    from l1flow_rl.data import fit_normalizers, load_episodes, make_chunk_buffer
-    from l1flow_rl.experts import ensure_demos
-    from l1flow_rl.experts.cli import demo_options
+    from l1flow_rl.data import fit_normalizers
+    from l1flow_rl.workspace.dataset import load_task_episodes, make_train_buffer, resolve_dataset
 
     rank, world = init_distributed()
     device = resolve_device(cfg.device)
@@ -78,34 +77,11 @@ def run_train(cfg: DictConfig) -> int:
 
     # -- data --------------------------------------------------------------------------------
     t_start = time.perf_counter()
-    if rank == 0:
-        task = OmegaConf.to_object(cfg.task)
-        if cfg.data.path:
-            dataset = Path(cfg.data.path)
-        else:
-            dataset = ensure_demos(
-                task, cfg.demos.num, cfg.data_dir, seed=cfg.demos.seed, **demo_options(cfg, task)
-            )
-        paths = [str(dataset)]
-    else:
-        paths = [""]
-    if world > 1:
-        dist.broadcast_object_list(paths, src=0)
-    dataset = Path(paths[0])
+    dataset = resolve_dataset(cfg, rank, world)
     demo_seconds = time.perf_counter() - t_start
-    # Image datasets stay memory-mapped on disk next to the demonstrations instead of in RAM.
-    memmap_dir = dataset.with_suffix(".memmap") if cfg.task.obs_mode != "state" else None
-    episodes = load_episodes(dataset, control_mode=cfg.task.control_mode, memmap_dir=memmap_dir)
+    episodes = load_task_episodes(cfg, dataset)
     pcfg = cfg.policy
-    buffer = make_chunk_buffer(
-        episodes,
-        obs_horizon=pcfg.obs_horizon,
-        pred_horizon=pcfg.pred_horizon,
-        batch_size=tcfg.batch_size,
-        seed=cfg.seed + rank,
-        action_pad="delta" if cfg.task.control == "delta" else "repeat",
-        prefetch=tcfg.prefetch or None,
-    )
+    buffer = make_train_buffer(cfg, episodes, seed=cfg.seed + rank)
 
     # -- model -------------------------------------------------------------------------------
     action_dim = int(episodes["action"].shape[-1])
