@@ -1,171 +1,241 @@
-"""Training-step time and per-chunk inference latency of the default state network, in one run.
+"""Per-chunk inference latency of one network under every sampler, beside the peers' own path and the
+floor, plus the training-step time of each loss, all in one run (the paper's speed claim).
 
-The network is the one ``l1flow-rl train`` builds by default (``PolicyConfig``: ConditionalUnet1D
-with down_dims 64/128/256, To=2, H=16, K=8) for a ManiSkill-PushCube-sized state (D=35, A=4).
+The network is the one ``l1flow-rl train`` builds by default (``PolicyConfig``: ConditionalUnet1D,
+down_dims 64/128/256, To=2, H=16, K=8) for a ManiSkill-PushCube-sized state (D=35, A=4); weights do
+not change the time, so one network serves every sampler.
 
-* Training: one AdamW step of each loss at batch 256 (L1 Flow, v-flow, DDPM, regression).
-* Inference: one action chunk at batch 1 through ``L1FlowActor`` (observation in, executable window
-  out) for L1 Flow's 2-NFE two-step sampler against a v-flow Euler-10, DDIM-16 and DDPM-100 on the
-  same network, and regression's single pass. Speed-ups are ratios to L1 Flow measured in this run.
+Inference, one action chunk through ``L1FlowActor`` (observation in, executable window out), at
+batch 1 and 64:
 
-Every figure is a median over repetitions, and the methods take turns within each round so that
-load drifting on a shared machine hits them alike. Both wall-clock and this process's CPU time are
-reported. ``--threads`` defaults to 1: on a busy 2-core machine torch's intra-op threads spin-wait
-and made small kernels several times slower (measured), and a policy in a control loop usually
-runs single-threaded anyway.
+* L1 Flow 2-NFE; sample-prediction Euler with 1/2/5/10 steps; v-prediction Euler 10;
+  DDIM-16 and DDPM-100 (this project's samplers); plain regression (its UNet drops the timestep
+  input, so it is the one network of its own);
+* the peer's own path: the same network driven by diffusers' ``DDPMScheduler`` (100 steps) and
+  ``DDIMScheduler`` (16 steps) in Diffusion Policy's loop (``scheduler.step(...).prev_sample``);
+* the floor: the encoder and 2 UNet forwards timed alone (no normalisation, no sampler code).
 
-    .venv/bin/python benchmarks/bench_latency.py [--threads 1] [--out benchmarks/results/latency.json]
+Reported: median wall and process-CPU milliseconds, L1 Flow's overhead over the floor (goal
+<= 1.05x), and speed-ups of L1 Flow over each method as ratios from this run. Training: one AdamW
+step of each loss at batch 256. Methods take turns within each round, so drifting load hits them
+alike. ``--threads`` defaults to 1: on a busy 2-core machine torch's intra-op threads spin-wait.
+
+    .venv/bin/python -m benchmarks.bench_latency [--quick] [--device cpu] [--out PATH]
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
-import os
-import platform
-import statistics
 import sys
-import time
 from collections.abc import Callable
-from pathlib import Path
 
 import torch
 from tensordict import TensorDict
 
+from benchmarks.common import format_table, interleaved, machine_info, save_results
 from l1flow_rl import DiffusionLoss, FlowMatchingLoss, L1FlowActor, L1FlowLoss, RegressionLoss
 from l1flow_rl.config import PolicyConfig
 from l1flow_rl.workspace.build import build_actor as build_policy_actor
 
-OBS_DIM, ACTION_DIM, BATCH = 35, 4, 256
+OBS_DIM, ACTION_DIM, TRAIN_BATCH = 35, 4, 256
 
-#: name -> (sampler, loss that trains a network for it)
-# method -> (sampler name and options in the policy config, loss)
-METHODS = {
-    "l1flow_2nfe": (("two_step", {"t_first": 0.5}), L1FlowLoss),
-    "flow_euler10": (("velocity_euler", {"steps": 10}), FlowMatchingLoss),
-    "ddim16": (("ddim", {"steps": 16}), DiffusionLoss),
-    "ddpm100": (("ddpm", {}), DiffusionLoss),
-    "regression": (("direct", {}), RegressionLoss),
+#: method -> (sampler name, sampler options)
+SAMPLERS: dict[str, tuple[str, dict]] = {
+    "l1flow_2nfe": ("two_step", {"t_first": 0.5}),
+    "euler1": ("euler", {"steps": 1}),
+    "euler2": ("euler", {"steps": 2}),
+    "euler5": ("euler", {"steps": 5}),
+    "euler10": ("euler", {"steps": 10}),
+    "vflow_euler10": ("velocity_euler", {"steps": 10}),
+    "ddim16": ("ddim", {"steps": 16}),
+    "ddpm100": ("ddpm", {}),
+    "regression": ("direct", {}),
 }
-TRAINED = ("l1flow_2nfe", "flow_euler10", "ddpm100", "regression")  # DDIM trains like DDPM
+#: method -> the loss that trains a network for it (DDIM trains like DDPM, Euler like L1 Flow)
+TRAINED = {
+    "l1flow_2nfe": L1FlowLoss,
+    "vflow_euler10": FlowMatchingLoss,
+    "ddpm100": DiffusionLoss,
+    "regression": RegressionLoss,
+}
 
 
-def build_actor(name: str, device: torch.device) -> L1FlowActor:
-    """The default policy config's network, built as the train job builds it, with ``name``'s sampler."""
-    sampler, options = METHODS[name][0]
-    cfg = dataclasses.replace(PolicyConfig(), sampler=sampler, sampler_kwargs=options)
-    return build_policy_actor(dataclasses.asdict(cfg), {"state": (OBS_DIM,)}, ACTION_DIM).to(device)
+def build_actor(method: str, device: torch.device, policy: PolicyConfig | None = None) -> L1FlowActor:
+    """The policy config's network, built as the train job builds it, with ``method``'s sampler."""
+    sampler, options = SAMPLERS[method]
+    cfg = dataclasses.replace(policy or PolicyConfig(), sampler=sampler, sampler_kwargs=options)
+    return build_policy_actor(dataclasses.asdict(cfg), {"state": (OBS_DIM,)}, ACTION_DIM).to(device).eval()
 
 
-def timed(fn: Callable[[], None], device: torch.device) -> tuple[float, float]:
-    """(wall seconds, process CPU seconds) of one call."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    fn()
-    if device.type == "cuda":
-        torch.cuda.synchronize()
-    return time.perf_counter() - wall, time.process_time() - cpu
-
-
-def interleaved(fns: dict[str, Callable[[], None]], rounds: int, device: torch.device) -> dict[str, dict]:
-    """Median wall and CPU milliseconds per call; the functions take turns each round."""
-    for fn in fns.values():  # warm-up
-        timed(fn, device)
-    walls: dict[str, list[float]] = {k: [] for k in fns}
-    cpus: dict[str, list[float]] = {k: [] for k in fns}
-    for _ in range(rounds):
-        for name, fn in fns.items():
-            w, c = timed(fn, device)
-            walls[name].append(w)
-            cpus[name].append(c)
-    return {
-        k: {"wall_ms": 1e3 * statistics.median(walls[k]), "cpu_ms": 1e3 * statistics.median(cpus[k])}
-        for k in fns
-    }
-
-
-def training_steps(device: torch.device) -> dict[str, Callable[[], None]]:
-    p = PolicyConfig()
-    batch = TensorDict(
-        {
-            "observation": torch.randn(BATCH, p.obs_horizon, OBS_DIM),
-            "action_chunk": torch.rand(BATCH, p.pred_horizon, ACTION_DIM) * 2 - 1,
-        },
-        [BATCH],
-        device=device,
+def _observation(batch: int, device: torch.device) -> TensorDict:
+    return TensorDict(
+        {"observation": torch.randn(batch, PolicyConfig().obs_horizon, OBS_DIM)}, [batch], device=device
     )
-    steps = {}
-    for name in TRAINED:
-        loss_fn = METHODS[name][1](build_actor(name, device))
-        optim = torch.optim.AdamW(loss_fn.parameters(), lr=1e-4, betas=(0.95, 0.999), weight_decay=1e-6)
-
-        def step(loss_fn=loss_fn, optim=optim) -> None:
-            loss = loss_fn(batch)[loss_fn.loss_name]
-            optim.zero_grad(set_to_none=True)
-            loss.backward()
-            optim.step()
-
-        steps[name] = step
-    return steps
 
 
-def inference_calls(device: torch.device) -> dict[str, Callable[[], None]]:
-    obs = TensorDict({"observation": torch.randn(1, PolicyConfig().obs_horizon, OBS_DIM)}, [1], device=device)
-    calls = {}
-    for name in METHODS:
-        actor = build_actor(name, device).eval()
+def _diffusers_call(actor: L1FlowActor, scheduler, steps: int, obs: TensorDict) -> Callable[[], None]:
+    """Diffusion Policy's sampling loop with a diffusers scheduler, around the same network."""
+    policy = actor.policy
+
+    @torch.inference_mode()
+    def call() -> None:
+        o = policy.as_obs_dict(obs.get("observation"))
+        cond = policy.encode(o)
+        x = torch.randn(cond.shape[0], policy.pred_horizon, policy.action_dim, device=cond.device)
+        scheduler.set_timesteps(steps)
+        for t in scheduler.timesteps:
+            eps = policy.net(x, t.to(cond.device).expand(x.shape[0]), cond)
+            x = scheduler.step(eps, t, x).prev_sample
+        policy.executable(policy.action_normalizer.unnormalize(x))
+
+    return call
+
+
+def _floor_call(actor: L1FlowActor, obs: TensorDict) -> Callable[[], None]:
+    """The encoder and 2 UNet forwards alone: what any 2-NFE policy must pay."""
+    policy = actor.policy
+
+    @torch.inference_mode()
+    def call() -> None:
+        cond = policy.encoder(policy.as_obs_dict(obs.get("observation"))).flatten(1)
+        x = torch.randn(cond.shape[0], policy.pred_horizon, policy.action_dim, device=cond.device)
+        t = torch.zeros(cond.shape[0], device=cond.device)
+        policy.net(policy.net(x, t, cond), t + 0.5, cond)
+
+    return call
+
+
+def inference_calls(device: torch.device, batch: int, peers: bool) -> dict[str, Callable[[], None]]:
+    obs = _observation(batch, device)
+    base = build_actor("l1flow_2nfe", device)
+    calls: dict[str, Callable[[], None]] = {"floor_2_unet": _floor_call(base, obs)}
+    for method in SAMPLERS:
+        actor = build_actor(method, device)
+        if method != "regression":  # regression's UNet has no timestep input: its own network
+            actor.load_state_dict(base.state_dict())  # the same network under each sampler
 
         @torch.inference_mode()
         def call(actor=actor) -> None:
             actor(obs.clone())
 
-        calls[name] = call
+        calls[method] = call
+    if peers:
+        from diffusers import DDIMScheduler, DDPMScheduler
+
+        options = {
+            "num_train_timesteps": 100,
+            "beta_schedule": "squaredcos_cap_v2",
+            "clip_sample": True,
+            "prediction_type": "epsilon",
+        }
+        calls["diffusers_ddpm100"] = _diffusers_call(base, DDPMScheduler(**options), 100, obs)
+        calls["diffusers_ddim16"] = _diffusers_call(base, DDIMScheduler(**options), 16, obs)
     return calls
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="benchmarks/results/latency.json")
-    parser.add_argument(
-        "--threads", type=int, default=1, help="torch intra-op threads (0: leave torch's default)"
+def training_steps(device: torch.device, batch: int) -> dict[str, Callable[[], None]]:
+    p = PolicyConfig()
+    data = TensorDict(
+        {
+            "observation": torch.randn(batch, p.obs_horizon, OBS_DIM),
+            "action_chunk": torch.rand(batch, p.pred_horizon, ACTION_DIM) * 2 - 1,
+        },
+        [batch],
+        device=device,
     )
-    parser.add_argument("--train-rounds", type=int, default=10)
-    parser.add_argument("--infer-rounds", type=int, default=15)
-    parser.add_argument("--device", default="cpu", help="cpu or cuda")
-    args = parser.parse_args()
+    steps = {}
+    for method, loss_cls in TRAINED.items():
+        loss_fn = loss_cls(build_actor(method, device).train())
+        optim = torch.optim.AdamW(loss_fn.parameters(), lr=1e-4, betas=(0.95, 0.999), weight_decay=1e-6)
+
+        def step(loss_fn=loss_fn, optim=optim) -> None:
+            loss = loss_fn(data)[loss_fn.loss_name]
+            optim.zero_grad(set_to_none=True)
+            loss.backward()
+            optim.step()
+
+        steps[method] = step
+    return steps
+
+
+def nfe_of(method: str) -> int:
+    from l1flow_rl.flow.samplers import make_sampler
+
+    name, options = SAMPLERS[method]
+    return make_sampler(name, **options).nfe
+
+
+def run(args: argparse.Namespace) -> dict:
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     device = torch.device(args.device)
     torch.manual_seed(0)
-
-    load_before = os.getloadavg()[0]
-    train = interleaved(training_steps(device), args.train_rounds, device)
-    infer = interleaved(inference_calls(device), args.infer_rounds, device)
-    ref = infer["l1flow_2nfe"]
-    n_params = sum(p.numel() for p in build_actor("l1flow_2nfe", device).parameters())
-    figures = {
-        "machine": f"{platform.machine()} {os.cpu_count()} cores, torch threads {torch.get_num_threads()}",
-        # other processes' load: with load above the core count, wall time exceeds CPU time
-        "load_average_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)],
-        "device": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
-        "network": {
-            "obs_dim": OBS_DIM,
-            "action_dim": ACTION_DIM,
-            "down_dims": PolicyConfig().down_dims,
-            "timestep_embed_dim": PolicyConfig().timestep_embed_dim,
-            "parameters": n_params,
-        },
-        "train_step_batch256_ms": {k: {m: round(v, 1) for m, v in r.items()} for k, r in train.items()},
-        "chunk_latency_batch1_ms": {k: {m: round(v, 2) for m, v in r.items()} for k, r in infer.items()},
-        "nfe": {k: METHODS[k][0]().nfe for k in METHODS},
-        "speedup_of_l1flow_wall": {k: round(r["wall_ms"] / ref["wall_ms"], 2) for k, r in infer.items()},
-        "speedup_of_l1flow_cpu": {k: round(r["cpu_ms"] / ref["cpu_ms"], 2) for k, r in infer.items()},
-        "l1flow_chunks_per_s_wall": round(1e3 / ref["wall_ms"], 1),
+    figures: dict = {"machine": machine_info(device), "quick": args.quick}
+    figures["network"] = {
+        "obs_dim": OBS_DIM,
+        "action_dim": ACTION_DIM,
+        "down_dims": list(PolicyConfig().down_dims),
+        "parameters": sum(p.numel() for p in build_actor("l1flow_2nfe", device).parameters()),
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(figures, indent=2) + "\n")
-    print(json.dumps(figures, indent=2))
+    figures["nfe"] = {m: nfe_of(m) for m in SAMPLERS} | {
+        "floor_2_unet": 2,
+        "diffusers_ddpm100": 100,
+        "diffusers_ddim16": 16,
+    }
+    figures["inference"] = {}
+    for batch in args.batches:
+        times = interleaved(inference_calls(device, batch, peers=not args.no_peers), args.rounds, device)
+        ref = times["l1flow_2nfe"]
+        figures["inference"][f"batch{batch}"] = {
+            "ms": {k: {m: round(v, 3) for m, v in r.items()} for k, r in times.items()},
+            # > 1: the method is that many times slower than L1 Flow 2-NFE (wall time, this run)
+            "slowdown_vs_l1flow": {k: round(r["wall_ms"] / ref["wall_ms"], 2) for k, r in times.items()},
+            "l1flow_over_floor": round(ref["wall_ms"] / times["floor_2_unet"]["wall_ms"], 3),
+            "l1flow_chunks_per_s": round(1e3 / ref["wall_ms"], 1),
+        }
+    if not args.no_train:
+        train = interleaved(training_steps(device, args.train_batch), args.train_rounds, device)
+        figures["train_step_ms"] = {
+            "batch": args.train_batch,
+            "ms": {k: {m: round(v, 1) for m, v in r.items()} for k, r in train.items()},
+        }
+    figures["machine"]["load_average_1min_end"] = machine_info(device)["load_average_1min"]
+    return figures
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", default="benchmarks/results/latency.json")
+    parser.add_argument("--device", default="cpu", help="cpu or cuda")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (0: torch's default)")
+    parser.add_argument("--batches", type=int, nargs="+", default=[1, 64])
+    parser.add_argument("--rounds", type=int, default=15)
+    parser.add_argument("--train-batch", type=int, default=TRAIN_BATCH)
+    parser.add_argument("--train-rounds", type=int, default=8)
+    parser.add_argument("--no-train", action="store_true")
+    parser.add_argument("--no-peers", action="store_true", help="skip diffusers' schedulers")
+    parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not speed")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.batches, args.rounds, args.train_batch, args.train_rounds = [1], 1, 8, 1
+    figures = run(args)
+    save_results(args.out, figures)
+    for name, block in figures["inference"].items():
+        rows = [
+            {
+                "method": k,
+                "nfe": figures["nfe"][k],
+                "wall ms": v["wall_ms"],
+                "cpu ms": v["cpu_ms"],
+                "x L1 Flow": block["slowdown_vs_l1flow"][k],
+            }
+            for k, v in block["ms"].items()
+        ]
+        print(f"\nper-chunk latency, {name} ({figures['machine']['device']}):")
+        print(format_table(rows, ["method", "nfe", "wall ms", "cpu ms", "x L1 Flow"]))
+        print(f"L1 Flow over the floor (encoder + 2 UNet forwards): {block['l1flow_over_floor']}x")
+    print(f"\nsaved {args.out}")
     return 0
 
 
