@@ -1,14 +1,16 @@
 """Chunk samplers: turn a trained network into an action chunk, counting network evaluations.
 
 A sampler is told what the network predicts (``prediction``) so that a loss can refuse an actor
-whose sampler does not match its training target.
+whose sampler does not match its training target, and a trained network can be re-scored only under
+samplers that read its output the same way (:func:`samplers_for`, :func:`check_sampler_fits`).
 """
 
 from __future__ import annotations
 
 import abc
+import inspect
 from collections.abc import Callable
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import torch
 from torch import Tensor
@@ -17,16 +19,27 @@ from l1flow_rl.flow.diffusion_schedule import DiffusionSchedule
 from l1flow_rl.flow.time import velocity_from_sample
 
 __all__ = [
+    "PREDICTIONS",
     "ChunkSampler",
     "DDIMSampler",
     "DDPMSampler",
     "Denoiser",
     "DirectSampler",
     "EulerSampler",
+    "SamplerMismatchError",
     "TwoStepSampler",
     "VelocityEulerSampler",
+    "check_sampler_fits",
     "make_sampler",
+    "sampler_name",
+    "sampler_names",
+    "sampler_parameters",
+    "samplers_for",
 ]
+
+#: what a network can be trained to predict: the clean chunk (L1 Flow), the flow velocity, the
+#: diffusion noise, or the chunk directly without noise or time (regression)
+PREDICTIONS = ("sample", "velocity", "epsilon", "direct")
 
 #: ``denoise(x, t)``: one network evaluation on the current chunk ``x`` [B, H, A] at time ``t`` [B]
 #: (flow time in [0, 1], or the integer diffusion step; ``None`` for timestep-free regression).
@@ -43,6 +56,15 @@ class ChunkSampler(abc.ABC):
     @abc.abstractmethod
     def nfe(self) -> int:
         """Network evaluations per chunk."""
+
+    def training_signature(self) -> dict[str, Any]:
+        """What the network must have been trained for to be sampled by this sampler: the prediction
+        type, plus (diffusion) the training schedule's length, which its timestep input indexes."""
+        return {"prediction": self.prediction}
+
+    def settings(self) -> dict[str, Any]:
+        """The constructor arguments that reproduce this sampler (``make_sampler(name, **settings)``)."""
+        return {k: v for k, v in vars(self).items() if not k.startswith("_")}
 
     @abc.abstractmethod
     def __call__(
@@ -151,6 +173,9 @@ class _EpsilonSampler(ChunkSampler):
     def schedule(self) -> DiffusionSchedule:
         return self._schedule
 
+    def training_signature(self) -> dict[str, Any]:
+        return {"prediction": self.prediction, "num_train_timesteps": self.num_train_timesteps}
+
     def _predict_x0(self, x: Tensor, eps: Tensor, alpha_bar: Tensor) -> Tensor:
         x0 = (x - (1 - alpha_bar).sqrt() * eps) / alpha_bar.sqrt()
         return x0.clamp(-1.0, 1.0) if self.clip_sample else x0
@@ -221,12 +246,85 @@ _REGISTRY: dict[str, type[ChunkSampler]] = {
 }
 
 
-def make_sampler(spec: str | ChunkSampler, **kwargs: float) -> ChunkSampler:
-    """Sampler by name: ``two_step``, ``euler``, ``velocity_euler``, ``ddpm``, ``ddim`` or ``direct``."""
+class SamplerMismatchError(ValueError):
+    """A sampler was asked to read a network trained for another target."""
+
+
+def sampler_names() -> list[str]:
+    return sorted(_REGISTRY)
+
+
+def sampler_name(sampler: ChunkSampler) -> str:
+    """The registry name of a sampler (its class name for a sampler defined elsewhere)."""
+    for name, cls in _REGISTRY.items():
+        if type(sampler) is cls:
+            return name
+    return type(sampler).__name__
+
+
+def samplers_for(prediction: str) -> list[str]:
+    """Names of the samplers that read a network trained to predict ``prediction``.
+
+    Example:
+        >>> samplers_for("epsilon")
+        ['ddim', 'ddpm']
+    """
+    if prediction not in PREDICTIONS:
+        raise ValueError(f"unknown prediction {prediction!r}; expected one of {list(PREDICTIONS)}")
+    return sorted(name for name, cls in _REGISTRY.items() if cls.prediction == prediction)
+
+
+def sampler_parameters(name: str) -> list[str]:
+    """The keyword arguments sampler ``name`` accepts (``policy.sampler_kwargs`` keys)."""
+    cls = _sampler_class(name)
+    return [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
+
+
+def _sampler_class(name: str) -> type[ChunkSampler]:
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown sampler {name!r}; expected one of {sampler_names()}") from None
+
+
+def check_sampler_fits(trained: ChunkSampler, candidate: ChunkSampler) -> None:
+    """Raise :class:`SamplerMismatchError` unless ``candidate`` can sample the network that
+    ``trained`` was built for; the message lists the samplers that fit.
+
+    Example:
+        >>> check_sampler_fits(DDPMSampler(), DDIMSampler(16))  # same epsilon network: fine
+        >>> try:
+        ...     check_sampler_fits(TwoStepSampler(), DDIMSampler(16))
+        ... except SamplerMismatchError as err:
+        ...     print(err)  # doctest: +ELLIPSIS
+        sampler 'ddim' reads an 'epsilon'-prediction network, ... samplers that fit: ['euler', 'two_step']
+    """
+    want, got = trained.training_signature(), candidate.training_signature()
+    if want["prediction"] != got["prediction"]:
+        raise SamplerMismatchError(
+            f"sampler {sampler_name(candidate)!r} reads an {got['prediction']!r}-prediction network, "
+            f"but this network was trained for {want['prediction']!r} prediction (sampled by "
+            f"{sampler_name(trained)!r}); samplers that fit: {samplers_for(want['prediction'])}"
+        )
+    diffs = [f"{k}={got.get(k)!r} (trained with {v!r})" for k, v in want.items() if got.get(k) != v]
+    if diffs:
+        raise SamplerMismatchError(
+            f"sampler {sampler_name(candidate)!r} does not fit the network's training: {', '.join(diffs)}"
+        )
+
+
+def make_sampler(spec: str | ChunkSampler, **kwargs: Any) -> ChunkSampler:
+    """Sampler by name: ``two_step``, ``euler``, ``velocity_euler``, ``ddpm``, ``ddim`` or ``direct``.
+
+    An argument the sampler does not take is an error naming it and the ones it takes.
+    """
     if isinstance(spec, ChunkSampler):
         return spec
-    try:
-        cls = _REGISTRY[spec]
-    except KeyError:
-        raise ValueError(f"unknown sampler {spec!r}; expected one of {sorted(_REGISTRY)}") from None
+    cls = _sampler_class(spec)
+    accepted = sampler_parameters(spec)
+    unknown = sorted(set(kwargs) - set(accepted))
+    if unknown:
+        raise ValueError(
+            f"sampler {spec!r} takes no argument {unknown} (policy.sampler_kwargs); it takes {accepted}"
+        )
     return cls(**kwargs)
