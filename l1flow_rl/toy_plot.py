@@ -37,7 +37,7 @@ def plot_toy(
 
     lim = 1.25 * float(modes.abs().max())
     h = modes.shape[-1]
-    panels = [("Demonstrations (2 modes)", modes.repeat_interleave(256, dim=0), None)]
+    panels = [(f"Demonstrations ({modes.shape[0]} modes)", modes.repeat_interleave(256, dim=0), None)]
     panels += [(title, x, results[name]) for name, (title, x) in samples.items()]
     fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.4), sharey=True, squeeze=False)
     extent = (0, h - 1, -lim, lim)
@@ -53,7 +53,7 @@ def plot_toy(
             ax.text(
                 0.5,
                 0.02,
-                f"A {r['share_mode_a']:.0%} | B {r['share_mode_b']:.0%} | neither {r['share_neither']:.0%}",
+                f"modes hit {r['modes_hit']}/{r['num_modes']} | off-mode {r['share_neither']:.0%}",
                 transform=ax.transAxes,
                 ha="center",
                 va="bottom",
@@ -61,7 +61,10 @@ def plot_toy(
                 fontsize=8,
             )
     axes[0][0].set_ylabel("action")
-    fig.suptitle("One observation, two demonstrated modes: where do the sampled chunks land?", fontsize=10)
+    fig.suptitle(
+        f"One observation, {modes.shape[0]} demonstrated modes: where do the sampled chunks land?",
+        fontsize=10,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -3,6 +3,8 @@ Speed is never asserted here (figures come from the scripts' own runs); structur
 
 import json
 
+import pytest
+
 from benchmarks import bench_latency
 
 
@@ -32,3 +34,28 @@ def test_latency_quick_mode_saves_every_method_with_its_nfe(tmp_path):
     assert all(v["wall_ms"] > 0 and v["cpu_ms"] >= 0 for v in block["ms"].values())
     assert block["l1flow_over_floor"] > 0
     assert set(figures["train_step_ms"]["ms"]) == {"l1flow_2nfe", "vflow_euler10", "ddpm100", "regression"}
+
+
+def test_multimodal_quick_mode_reports_every_family_and_evaluation(tmp_path):
+    from benchmarks import bench_multimodal
+
+    out = tmp_path / "multimodal.json"
+    assert bench_multimodal.main(["--quick", "--out", str(out), "--methods", "l1flow", "regression"]) == 0
+    figures = json.loads(out.read_text())
+    assert {f: b["num_modes"] for f, b in figures["families"].items()} == {
+        "opposite_sines": 2,
+        "nested_amplitudes": 4,
+        "phase_shifts": 8,
+    }
+    for block in figures["families"].values():
+        evaluations = block["methods"]
+        assert set(evaluations) == {
+            "l1flow",
+            "l1flow_tfirst0.3",
+            "l1flow_tfirst0.7",
+            "l1flow_euler10",
+            "regression",
+        }
+        for r in evaluations.values():
+            assert len(r["shares"]) == block["num_modes"]
+            assert sum(r["shares"]) + r["share_neither"] == pytest.approx(1.0)

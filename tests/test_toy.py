@@ -60,3 +60,21 @@ def test_toy_rejects_bad_config(tmp_path):
     cfg.toy.steps = 0
     with pytest.raises(ValueError, match=r"toy\.steps must be >= 1, got 0"):
         run_toy(cfg)
+
+
+@pytest.mark.parametrize(
+    ("family", "k"), [("opposite_sines", 2), ("nested_amplitudes", 4), ("phase_shifts", 8)]
+)
+def test_mode_families_are_separable_at_the_tolerance(family, k):
+    from l1flow_rl.toy import TOLERANCE, toy_modes
+
+    modes = toy_modes(family)
+    assert modes.shape == (k, 16)
+    dist = (modes[:, None] - modes[None]).square().mean(-1).sqrt()
+    off_diagonal = dist[~torch.eye(k, dtype=torch.bool)]
+    # a sample can sit on one mode at most
+    assert off_diagonal.min() > 2 * TOLERANCE
+    r = mode_coverage(modes.repeat(3, 1), modes)
+    assert r["shares"] == pytest.approx([1 / k] * k) and r["modes_hit"] == k and r["share_neither"] == 0
+    one = mode_coverage(modes[[0]].repeat(10, 1), modes)
+    assert one["modes_hit"] == 1 and one["balance"] == 0.0

@@ -16,4 +16,5 @@ class ToyConfig:
     lr: float = 1e-3
     samples: int = 512
     seed: int = 0
+    modes: str = "opposite_sines"  # opposite_sines (2) | nested_amplitudes (4) | phase_shifts (8)
     methods: list[str] = field(default_factory=lambda: ["l1flow", "flow_matching", "regression"])
