@@ -6,7 +6,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["format_summary", "save_plots"]
+__all__ = ["format_summary", "save_history", "save_plots"]
 
 
 def save_plots(
@@ -50,6 +50,18 @@ def save_plots(
         plt.close(fig)
         written.append(run_dir / "success.png")
     return written
+
+
+def save_history(
+    history: Mapping[str, Sequence[float]], evals: Sequence[Mapping[str, Any]], run_dir: Path
+) -> Path:
+    """``history.json``: the logged training curve and every evaluation during training (what
+    ``benchmarks/`` reads for convergence curves)."""
+    import json
+
+    path = run_dir / "history.json"
+    path.write_text(json.dumps({"train": dict(history), "evals": list(evals)}, indent=1) + "\n")
+    return path
 
 
 def format_summary(rows: Mapping[str, Any]) -> str:

@@ -29,7 +29,7 @@ from l1flow_rl.workspace.checkpoint import (
 from l1flow_rl.workspace.distributed import init_distributed, resolve_device
 from l1flow_rl.workspace.evaluator import PeriodicEvaluator
 from l1flow_rl.workspace.logging import make_logger
-from l1flow_rl.workspace.report import format_summary, save_plots
+from l1flow_rl.workspace.report import format_summary, save_history, save_plots
 from l1flow_rl.workspace.trainer import Trainer
 
 __all__ = ["resolve_device", "run_train"]
@@ -212,6 +212,7 @@ def run_train(cfg: DictConfig) -> int:
         )
     summary["wall_seconds"] = round(time.perf_counter() - t_start, 1)
     save_plots(history, evals, run_dir)
+    save_history(history, evals, run_dir)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     print(format_summary(summary))
     print(f"run directory: {run_dir}")
