@@ -1,30 +1,16 @@
-"""Observation encoders: a TensorDict of observation entries [N, To, ...] -> per-step features [N, To, F].
-
-The policy flattens the To per-step features into the UNet's global condition. Image encoders
-plug in through the same interface.
-"""
+"""The state encoder: flat entries concatenated, optionally through an MLP."""
 
 from __future__ import annotations
 
-import abc
 from collections.abc import Mapping, Sequence
 
 import torch
 from tensordict import TensorDictBase
 from torch import Tensor, nn
 
-__all__ = ["ObservationEncoder", "StateEncoder"]
+from l1flow_rl.networks.encoders.base import ObservationEncoder
 
-
-class ObservationEncoder(nn.Module, abc.ABC):
-    """Interface: ``obs_shapes`` (entry -> per-step shape) and ``feature_dim`` (F)."""
-
-    obs_shapes: dict[str, tuple[int, ...]]
-    feature_dim: int
-
-    @abc.abstractmethod
-    def forward(self, obs: TensorDictBase) -> Tensor:
-        """[N, To, ...] entries -> [N, To, F]."""
+__all__ = ["StateEncoder"]
 
 
 class StateEncoder(ObservationEncoder):
@@ -32,6 +18,13 @@ class StateEncoder(ObservationEncoder):
 
     Diffusion Policy and ManiSkill's baseline feed low-dimensional state straight into the
     condition, which is the default here (no MLP).
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> enc = StateEncoder({"qpos": 3, "goal": 2})
+        >>> enc(TensorDict({"qpos": torch.zeros(4, 2, 3), "goal": torch.zeros(4, 2, 2)}, [4, 2])).shape
+        torch.Size([4, 2, 5])
     """
 
     def __init__(
