@@ -57,11 +57,15 @@ class RobosuiteEnv(EnvBase):
         camera: str | None = None,
     ) -> None:
         if task.simulator != "robosuite":
-            raise ValueError(f"task {task.name!r} has simulator={task.simulator!r}; RobosuiteEnv needs 'robosuite'")
+            raise ValueError(
+                f"task {task.name!r} has simulator={task.simulator!r}; RobosuiteEnv needs 'robosuite'"
+            )
         if task.obs_mode not in ("state", "rgb"):
             raise ValueError(f"task {task.name!r}: obs_mode must be 'state' or 'rgb', got {task.obs_mode!r}")
         if not task.state_keys:
-            raise ValueError(f"task {task.name!r}: state_keys is empty; robosuite tasks name their state keys")
+            raise ValueError(
+                f"task {task.name!r}: state_keys is empty; robosuite tasks name their state keys"
+            )
         if task.obs_mode == "rgb" and not task.cameras:
             raise ValueError(f"task {task.name!r}: obs_mode 'rgb' needs cameras (e.g. [agentview])")
         super().__init__(device=torch.device("cpu"), batch_size=torch.Size([]))
@@ -85,7 +89,9 @@ class RobosuiteEnv(EnvBase):
     # -- simulator --------------------------------------------------------------------------------
 
     def _make_sim(self):
-        return sim.make_from_env_args(self.env_args, render=self.render_enabled, source=f"task {self.task.name!r}")
+        return sim.make_from_env_args(
+            self.env_args, render=self.render_enabled, source=f"task {self.task.name!r}"
+        )
 
     @property
     def sim(self):
@@ -101,24 +107,36 @@ class RobosuiteEnv(EnvBase):
             observation = Composite(state=state, **images, shape=())
         flag = {"shape": (1,), "dtype": torch.bool}
         self.observation_spec = Composite(
-            observation=observation, success=Categorical(2, **flag), sim_error=Categorical(2, **flag), shape=()
+            observation=observation,
+            success=Categorical(2, **flag),
+            sim_error=Categorical(2, **flag),
+            shape=(),
         )
         low, high = (np.asarray(x, dtype=np.float32) for x in self._sim.action_spec)
         if self.task.control == "absolute":  # arm targets are poses, not [-1, 1] commands
             self.action_spec = Unbounded(shape=low.shape, dtype=torch.float32)
         else:
-            self.action_spec = Bounded(torch.as_tensor(low), torch.as_tensor(high), shape=low.shape, dtype=torch.float32)
+            self.action_spec = Bounded(
+                torch.as_tensor(low), torch.as_tensor(high), shape=low.shape, dtype=torch.float32
+            )
         self.reward_spec = Unbounded(shape=(1,), dtype=torch.float32)
         self.done_spec = Composite(
-            done=Categorical(2, **flag), terminated=Categorical(2, **flag), truncated=Categorical(2, **flag), shape=()
+            done=Categorical(2, **flag),
+            terminated=Categorical(2, **flag),
+            truncated=Categorical(2, **flag),
+            shape=(),
         )
 
     def _observation(self, state: np.ndarray, images: dict[str, np.ndarray]) -> Tensor | TensorDictBase:
         if self.task.obs_mode == "state":
             return torch.from_numpy(state)
-        return TensorDict({"state": torch.from_numpy(state), **{k: torch.from_numpy(v) for k, v in images.items()}})
+        return TensorDict(
+            {"state": torch.from_numpy(state), **{k: torch.from_numpy(v) for k, v in images.items()}}
+        )
 
-    def _output(self, reward: float, terminated: bool, truncated: bool, success: bool, sim_error: bool) -> TensorDict:
+    def _output(
+        self, reward: float, terminated: bool, truncated: bool, success: bool, sim_error: bool
+    ) -> TensorDict:
         def flag(value: bool) -> Tensor:
             return torch.tensor([bool(value)])
 
@@ -154,7 +172,9 @@ class RobosuiteEnv(EnvBase):
                 return self._output(reward, terminated, truncated, success, False)
         return self._output(0.0, False, True, False, True)
 
-    def _reset(self, tensordict: TensorDictBase | None = None, *, seed: Any = None, **kwargs) -> TensorDictBase:
+    def _reset(
+        self, tensordict: TensorDictBase | None = None, *, seed: Any = None, **kwargs
+    ) -> TensorDictBase:
         if kwargs:
             raise TypeError(f"RobosuiteEnv.reset got unexpected keyword arguments {sorted(kwargs)}")
         if self._broken:
@@ -195,4 +215,5 @@ class RobosuiteEnv(EnvBase):
         super().close(raise_if_closed=raise_if_closed)
 
     def __repr__(self) -> str:
-        return f"RobosuiteEnv(env_id={self.task.env_id!r}, obs_mode={self.task.obs_mode!r}, control={self.task.control!r})"
+        task = self.task
+        return f"RobosuiteEnv(env_id={task.env_id!r}, obs_mode={task.obs_mode!r}, control={task.control!r})"

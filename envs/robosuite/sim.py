@@ -86,9 +86,15 @@ def controller_configs(robot: str, control_mode: str, control: str) -> dict:
     if control not in ("absolute", "delta"):
         raise ValueError(f"control must be 'absolute' or 'delta', got {control!r}")
     cfg = load_composite_controller_config(robot=robot)
-    arms = [name for name, part in cfg["body_parts"].items() if str(part.get("type", "")).startswith(("OSC", "IK"))]
+    arms = [
+        name
+        for name, part in cfg["body_parts"].items()
+        if str(part.get("type", "")).startswith(("OSC", "IK"))
+    ]
     if not arms:
-        raise ValueError(f"robosuite's default controller for {robot!r} has no arm part to drive with {control_mode}")
+        raise ValueError(
+            f"robosuite's default controller for {robot!r} has no arm part to drive with {control_mode}"
+        )
     for arm in arms:
         part = cfg["body_parts"][arm]
         part["type"] = control_mode
@@ -146,7 +152,9 @@ def _robots(task: TaskConfig) -> list[str]:
     return [robots] if isinstance(robots, str) else list(robots)
 
 
-def env_args_for_task(task: TaskConfig, *, cameras: Sequence[str] | None = None, render: bool = False) -> dict:
+def env_args_for_task(
+    task: TaskConfig, *, cameras: Sequence[str] | None = None, render: bool = False
+) -> dict:
     """robomimic's ``env_args`` (``env_name``, ``env_version``, ``type``, ``env_kwargs``) of a task:
     what :func:`make_from_env_args` makes, and what the demonstration files record.
 
@@ -222,7 +230,9 @@ def make_from_env_args(
     try:
         return suite.make(name, **kwargs)
     except TypeError as err:
-        raise ValueError(f"{source}: robosuite.make({name!r}) refused the recorded env_kwargs: {err}") from err
+        raise ValueError(
+            f"{source}: robosuite.make({name!r}) refused the recorded env_kwargs: {err}"
+        ) from err
 
 
 # -- episodes ---------------------------------------------------------------------------------------
