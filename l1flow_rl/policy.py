@@ -85,7 +85,8 @@ class ChunkPolicy(nn.Module):
     # -- observation handling -------------------------------------------------------------
     def as_obs_dict(self, observation: Tensor | TensorDictBase, key: str = "observation") -> TensorDictBase:
         """Validate an observation (tensor or TensorDict of entries) with batch dims [*B, To, ...]
-        and return it as a TensorDict flattened to batch [N, To]."""
+        and return it as a TensorDict flattened to batch [N, To]. Flat entries are cast to the
+        network's dtype; image entries ([3, H, W] per step) must be uint8 and stay uint8 here."""
         if isinstance(observation, Tensor):
             if set(self.encoder.obs_shapes) != {STATE_KEY}:
                 raise TypeError(
@@ -113,6 +114,9 @@ class ChunkPolicy(nn.Module):
                     f"{name!r} must have shape [*B, {self.obs_horizon}, {', '.join(map(str, shape))}] "
                     f"(obs_horizon, entry shape), got {tuple(v.shape)}"
                 )
+            if len(shape) == 3 and v.dtype != torch.uint8:
+                # images travel as bytes; the encoder makes floats on the policy's own device
+                raise TypeError(f"{name!r} is an image entry [3, H, W] and must be uint8, got {v.dtype}")
             b = tuple(v.shape[:-nd])
             if batch is not None and b != batch:
                 raise ValueError(f"{name!r} has batch dims {b}, other observation entries have {batch}")

@@ -59,3 +59,26 @@ def test_multimodal_quick_mode_reports_every_family_and_evaluation(tmp_path):
         for r in evaluations.values():
             assert len(r["shares"]) == block["num_modes"]
             assert sum(r["shares"]) + r["share_neither"] == pytest.approx(1.0)
+
+
+def test_report_builds_the_readme_section_from_saved_results_only(tmp_path):
+    from benchmarks import report
+
+    results = tmp_path / "results"
+    assert (
+        bench_latency.main(["--quick", "--no-train", "--no-peers", "--out", str(results / "latency.json")])
+        == 0
+    )
+    figures = json.loads((results / "latency.json").read_text())
+    (results / "latency.json").write_text(json.dumps({**figures, "quick": False}))
+    (results / "somebody_new.json").write_text("{}")
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{report.BEGIN}\nstale\n{report.END}\noutro\n")
+    assert report.main(["--readme", str(readme), "--results", str(results), "--check"]) == 1
+    assert report.main(["--readme", str(readme), "--results", str(results)]) == 0
+    text = readme.read_text()
+    assert text.startswith("intro\n") and text.endswith("outro\n") and "stale" not in text
+    ms = figures["inference"]["batch1"]["ms"]["l1flow_2nfe"]["wall_ms"]
+    assert f"| l1flow_2nfe | 2 | {ms:.3g} |" in text  # the number comes from the file
+    assert "`somebody_new.json`" in text  # a file without a renderer is named, not dropped
+    assert report.main(["--readme", str(readme), "--results", str(results), "--check"]) == 0

@@ -3,6 +3,7 @@ so a wrong key or a value of the wrong type fails before any work starts, naming
 
 from l1flow_rl.config.app import AppConfig
 from l1flow_rl.config.data import PADDING_RULES, DataConfig, DemosConfig
+from l1flow_rl.config.encoder import EncoderConfig
 from l1flow_rl.config.evaluation import EvalConfig
 from l1flow_rl.config.paths import CONFIG_DIR
 from l1flow_rl.config.policy import PolicyConfig
@@ -17,6 +18,7 @@ __all__ = [
     "AppConfig",
     "DataConfig",
     "DemosConfig",
+    "EncoderConfig",
     "EvalConfig",
     "PolicyConfig",
     "TaskConfig",

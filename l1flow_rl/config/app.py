@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from l1flow_rl.config.data import DataConfig, DemosConfig
+from l1flow_rl.config.encoder import EncoderConfig
 from l1flow_rl.config.evaluation import EvalConfig
 from l1flow_rl.config.policy import PolicyConfig
 from l1flow_rl.config.task import TaskConfig
@@ -20,6 +21,7 @@ class AppConfig:
 
     task: TaskConfig = field(default_factory=TaskConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
     demos: DemosConfig = field(default_factory=DemosConfig)
     data: DataConfig = field(default_factory=DataConfig)
     train: TrainConfig = field(default_factory=TrainConfig)

@@ -1,4 +1,5 @@
-"""Turn a validated :class:`~l1flow_rl.config.PolicyConfig` into an actor and its loss."""
+"""Turn validated :class:`~l1flow_rl.config.PolicyConfig` and
+:class:`~l1flow_rl.config.EncoderConfig` into an actor, and the policy config into its loss."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from torchrl.objectives import LossModule
 
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.flow.samplers import make_sampler
+from l1flow_rl.networks.encoders import AUTO, make_encoder
 from l1flow_rl.objectives import DiffusionLoss, FlowMatchingLoss, L1FlowLoss, RegressionLoss
 
 __all__ = ["LOSSES", "build_actor", "build_loss"]
@@ -26,21 +28,25 @@ def _plain(cfg: DictConfig | Mapping) -> dict:
 
 
 def build_actor(
-    policy_cfg: DictConfig | Mapping, obs_shapes: Mapping[str, tuple[int, ...]], action_dim: int
+    policy_cfg: DictConfig | Mapping,
+    obs_shapes: Mapping[str, tuple[int, ...]],
+    action_dim: int,
+    encoder_cfg: DictConfig | Mapping | None = None,
 ) -> L1FlowActor:
-    """Actor for the policy config and the dataset's observation entries (entry -> per-step shape)."""
+    """Actor for the policy config, the encoder config (``None``: ``auto``) and the dataset's
+    observation entries (entry -> per-step shape: [D] flat, [3, H, W] an image).
+
+    The encoder comes from the encoder registry (``l1flow_rl.networks.encoders``): ``auto`` takes
+    ``resnet18_gn`` when an entry is an image and ``state`` otherwise; a state-only encoder on
+    image entries is refused, naming them.
+    """
     p = _plain(policy_cfg)
-    non_flat = {k: s for k, s in obs_shapes.items() if len(s) != 1}
-    if non_flat:
-        raise ValueError(
-            f"observation entries {sorted(non_flat)} are images ({non_flat}); this release ships state "
-            "encoders only, so set task.obs_mode=state (image encoders are tracked separately)"
-        )
-    dims = {k: s[0] for k, s in obs_shapes.items()}
-    obs_dim: int | dict[str, int] = dims["state"] if set(dims) == {"state"} else dims
-    return L1FlowActor.for_state(
-        obs_dim,
-        action_dim,
+    e = _plain(encoder_cfg) if encoder_cfg is not None else {}
+    name = e.pop("name", AUTO)
+    encoder = make_encoder(name, {k: tuple(s) for k, s in obs_shapes.items()}, e)
+    return L1FlowActor.build(
+        encoder,
+        action_dim=action_dim,
         obs_horizon=p["obs_horizon"],
         pred_horizon=p["pred_horizon"],
         action_steps=p["action_steps"],

@@ -125,7 +125,7 @@ def load_actor(
     state = load_checkpoint(path, map_location)
     cfg = OmegaConf.create(state["config"])
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
-    actor = build_actor(cfg.policy, shapes, int(state["action_dim"]))
+    actor = build_actor(cfg.policy, shapes, int(state["action_dim"]), cfg.get("encoder"))
     weights = state["ema"] if use_ema and state.get("ema") is not None else state["model"]
     load_state_into(actor, weights, str(path))
     return actor.to(map_location).eval(), cfg

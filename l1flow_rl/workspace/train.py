@@ -86,7 +86,7 @@ def run_train(cfg: DictConfig) -> int:
     # -- model -------------------------------------------------------------------------------
     action_dim = int(episodes["action"].shape[-1])
     obs_shapes = _obs_shapes(episodes)
-    actor = build_actor(pcfg, obs_shapes, action_dim)
+    actor = build_actor(pcfg, obs_shapes, action_dim, cfg.get("encoder"))
     fit_normalizers(actor.policy, episodes, mode=pcfg.normalizer, obs_mode=pcfg.obs_normalizer)
     actor.to(device)
     loss_fn = build_loss(actor, pcfg)

@@ -1,0 +1,158 @@
+"""Success and convergence, side by side (the paper's Table 2 and Figure 4 at this machine's scale).
+
+For each task, each method (``policy=l1flow|flow|ddpm|regression``) is trained on the same
+demonstrations with the same network over several seeds, evaluated every ``--eval-every`` steps on
+the validation seeds, and finally on the test seeds. The DDPM network is also re-scored under
+DDIM-16 (a sampler swap, no retraining), and with ``--maniskill-protocol`` every final network is
+re-scored under ``eval.protocol=maniskill`` so the rows sit beside ManiSkill's published baseline.
+
+Saved: ``benchmarks/results/success_<tag>.json`` (per run, per method: final success_once with its
+95 % Wilson interval, mean and spread over seeds, the curve, steps to 90 % of the best) and
+``success_<tag>.png`` (success against step, mean and min-max band over seeds). The sweep resumes:
+finished runs are read back, interrupted ones continue from their last checkpoint.
+
+Budget on 2 CPU cores (state, default network, batch 64): about 5.5 training steps/s, so
+2,500 steps is ~8 minutes a run plus evaluations (~1 s per 50-episode chunk of PushCube steps);
+3 tasks x 4 methods x 3 seeds is ~2 h of training alone. ``--quick`` checks the script on tiny budgets.
+
+    .venv/bin/python -m benchmarks.bench_success --tasks maniskill_pushcube --seeds 0 1 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from benchmarks.common import format_table, machine_info, save_results
+from benchmarks.sweep import Run, mean_and_spread, read_history, rescore, steps_to_fraction_of_best, train
+
+POLICIES = ("l1flow", "flow", "ddpm", "regression")
+#: re-scorings of a finished network: name -> (policies it applies to, eval overrides)
+RESCORES = {"ddim16": (("ddpm",), ["policy.sampler=ddim", "policy.sampler_kwargs.steps=16"])}
+
+
+def _plot(results: dict[str, Any], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(results)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 3.6), squeeze=False)
+    for ax, task in zip(axes[0], tasks):
+        for method, block in results[task].items():
+            curves = [c for c in block["curves"] if c]
+            if not curves:
+                continue
+            steps = sorted({s for c in curves for s, _ in c})
+            values = [[v for c in curves if (v := dict(c).get(s)) is not None] for s in steps]
+            mean = [sum(vs) / len(vs) for vs in values]
+            lo, hi = [min(vs) for vs in values], [max(vs) for vs in values]
+            (line,) = ax.plot(steps, mean, "o-", ms=3, label=method)
+            ax.fill_between(steps, lo, hi, color=line.get_color(), alpha=0.15)
+        ax.set_title(task, fontsize=9)
+        ax.set_xlabel("training step")
+        ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("success_once (validation seeds)")
+    axes[0][-1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=["maniskill_pushcube"])
+    parser.add_argument("--policies", nargs="+", default=list(POLICIES))
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--steps", type=int, default=2500)
+    parser.add_argument("--eval-every", type=int, default=500)
+    parser.add_argument("--eval-episodes", type=int, default=50)
+    parser.add_argument("--demos", type=int, default=100)
+    parser.add_argument(
+        "--maniskill-protocol", action="store_true", help="also score under eval.protocol=maniskill"
+    )
+    parser.add_argument("--root", default="runs/bench_success", help="where the runs and data live")
+    parser.add_argument("--tag", default=None, help="results name (default: the task list)")
+    parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not the claim")
+    parser.add_argument("extra", nargs="*", help="hydra overrides applied to every run")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.steps, args.eval_every, args.eval_episodes, args.demos = 4, 2, 1, 2
+    root = Path(args.root)
+    tag = args.tag or "_".join(t.replace("maniskill_", "") for t in args.tasks)
+    results: dict[str, Any] = {}
+    for task in args.tasks:
+        results[task] = {}
+        for policy in args.policies:
+            runs = [
+                Run(
+                    f"{task}/{policy}/seed{seed}",
+                    [
+                        f"task={task}",
+                        f"policy={policy}",
+                        f"seed={seed}",
+                        f"demos.num={args.demos}",
+                        f"train.steps={args.steps}",
+                        f"train.eval_every={args.eval_every}",
+                        f"train.checkpoint_every={args.eval_every}",
+                        f"eval.episodes={args.eval_episodes}",
+                        *args.extra,
+                    ],
+                    root / task / policy / f"seed{seed}",
+                )
+                for seed in args.seeds
+            ]
+            evaluations: dict[str, list[dict[str, Any]]] = {policy: [train(r, root / "data") for r in runs]}
+            for name, (policies, overrides) in RESCORES.items():
+                if policy in policies:
+                    extra = [f"eval.episodes={args.eval_episodes}"]
+                    evaluations[f"{policy}_{name}"] = [rescore(r, name, [*overrides, *extra]) for r in runs]
+            if args.maniskill_protocol:
+                for label in list(evaluations):
+                    sampler = RESCORES.get(label.removeprefix(f"{policy}_"), ((), []))[1]
+                    evaluations[f"{label}_maniskill_protocol"] = [
+                        rescore(r, f"{label}_maniskill", [*sampler, "eval.protocol=maniskill"]) for r in runs
+                    ]
+            curves = [[(e["step"], e["success_once"]) for e in read_history(r)] for r in runs]
+            for label, evals in evaluations.items():
+                finals = [e["success_once"] for e in evals]
+                results[task][label] = {
+                    "success_once": mean_and_spread(finals),
+                    "per_seed": [
+                        {k: e.get(k) for k in ("success_once", "success_once_ci95", "episodes", "seed_split")}
+                        for e in evals
+                    ],
+                    "curves": curves if label == policy else [],
+                    "steps_to_90pct_of_best": [steps_to_fraction_of_best(c) for c in curves]
+                    if label == policy
+                    else [],
+                }
+    figures = {"machine": machine_info(), "quick": args.quick, "args": vars(args), "tasks": results}
+    out = Path("benchmarks/results") / f"success_{tag}{'_quick' if args.quick else ''}.json"
+    if args.quick:
+        out = root / out.name
+    save_results(out, figures)
+    _plot(results, out.with_suffix(".png"))
+    rows = [
+        {
+            "task": task,
+            "method": label,
+            "success_once": b["success_once"]["mean"],
+            "std": b["success_once"]["std"],
+            "seeds": b["success_once"]["n"],
+            "steps to 90%": ",".join(str(s) for s in b["steps_to_90pct_of_best"]) or "-",
+        }
+        for task, block in results.items()
+        for label, b in block.items()
+    ]
+    print(format_table(rows, ["task", "method", "success_once", "std", "seeds", "steps to 90%"]))
+    print(f"saved {out} and {out.with_suffix('.png')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

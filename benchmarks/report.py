@@ -1,0 +1,195 @@
+"""The README's results section, built from the JSON the benchmark scripts saved: no number in it is
+typed by hand.
+
+    .venv/bin/python -m benchmarks.report            # rewrite the section between the markers
+    .venv/bin/python -m benchmarks.report --check    # exit 1 if the README is out of date
+
+Each results file has a renderer keyed by its name; a file without one is listed by name, so
+nothing saved is silently left out. Quick-mode files (``"quick": true``) are never reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+__all__ = ["build_section", "main"]
+
+BEGIN, END = "<!-- results:begin (python -m benchmarks.report) -->", "<!-- results:end -->"
+RESULTS = Path("benchmarks/results")
+
+
+def _num(value: Any, digits: int = 3) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "–"
+    if isinstance(value, float):
+        return f"{value:.{digits}g}"
+    return str(value)
+
+
+def _table(header: list[str], rows: list[list[Any]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(_num(v) for v in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def _machine(d: dict) -> str:
+    m = d.get("machine")
+    if isinstance(m, dict):
+        parts = [m.get("cpu", "?"), f"{m.get('cores')} cores", f"torch threads {m.get('torch_threads')}"]
+        if "load_average_1min" in m:
+            parts.append(f"load {m['load_average_1min']}")
+        if m.get("gpu"):
+            parts.append(m["gpu"])
+        return ", ".join(str(p) for p in parts)
+    return str(m)
+
+
+def render_main_job(d: dict) -> str:
+    return _table(
+        ["task", "wall s", "of 15-min budget", "demos s", "train s", "steps", "success_once", "episodes"],
+        [
+            [
+                "maniskill_pushcube (state)",
+                d["wall_seconds"],
+                d["wall_over_budget"],
+                d.get("demo_seconds"),
+                d.get("train_seconds"),
+                d.get("steps"),
+                d["success_once"],
+                d["eval_episodes"],
+            ]
+        ],
+    )
+
+
+def render_latency(d: dict) -> str:
+    out = []
+    for batch, block in d["inference"].items():
+        rows = [
+            [name, d["nfe"].get(name), ms["wall_ms"], ms["cpu_ms"], block["slowdown_vs_l1flow"][name]]
+            for name, ms in block["ms"].items()
+        ]
+        out.append(f"Per-chunk latency, {batch}, {d['machine'].get('device', 'cpu')}:\n")
+        out.append(_table(["method", "NFE", "wall ms", "CPU ms", "× L1 Flow"], rows))
+        out.append(f"\nL1 Flow over its floor (encoder + 2 UNet forwards): {block['l1flow_over_floor']}×\n")
+    if "train_step_ms" in d:
+        t = d["train_step_ms"]
+        rows = [[k, v["wall_ms"], v["cpu_ms"]] for k, v in t["ms"].items()]
+        out.append(f"Training step, batch {t['batch']}:\n")
+        out.append(_table(["loss", "wall ms", "CPU ms"], rows))
+    return "\n".join(out)
+
+
+def render_multimodal(d: dict) -> str:
+    out = [f"{d['steps']} training steps per method.\n"]
+    for family, block in d["families"].items():
+        rows = [
+            [name, r["nfe"], f"{r['modes_hit']}/{r['num_modes']}", r["share_neither"], r["balance"]]
+            for name, r in block["methods"].items()
+        ]
+        out.append(f"{family} ({block['num_modes']} modes):\n")
+        out.append(_table(["evaluation", "NFE", "modes hit", "off-mode mass", "balance"], rows) + "\n")
+    return "\n".join(out)
+
+
+def render_success(d: dict) -> str:
+    rows = []
+    for task, block in d["tasks"].items():
+        for label, b in block.items():
+            s = b["success_once"]
+            steps = [x for x in b.get("steps_to_90pct_of_best", []) if x is not None]
+            rows.append([task, label, s["mean"], s["std"], s["n"], ", ".join(map(str, steps)) or "–"])
+    return _table(["task", "method", "success_once (mean)", "std over seeds", "seeds", "steps to 90 %"], rows)
+
+
+def render_ablations(d: dict) -> str:
+    rows = [
+        [name, b["kind"], b["success_once"]["mean"], b["success_once"]["std"], b["success_once"]["n"]]
+        for name, b in d["variants"].items()
+    ]
+    return _table(["variant", "kind", "success_once", "std", "seeds"], rows)
+
+
+def render_env_throughput(d: dict) -> str:
+    rows = []
+    for r in d["rows"]:
+        for name, a in r["adapters"].items():
+            rows.append([r["setting"], name, r["raw_steps_per_s"], a["steps_per_s"], a["over_raw"]])
+    return _table(["setting", "adapter", "raw steps/s", "adapter steps/s", "× raw"], rows)
+
+
+def render_sampler(d: dict) -> str:
+    return _table(
+        ["storage", "chunks/s sampled", "× training rate"],
+        [
+            ["state", d["state_chunks_per_s"], d["state_sampler_over_train"]],
+            ["rgb 128²", d["rgb128_chunks_per_s"], d["rgb128_sampler_over_train"]],
+        ],
+    )
+
+
+#: file-name pattern -> (section title, renderer)
+RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
+    (r"main_job\.json", "Main job", render_main_job),
+    (r"latency\.json", "Inference latency and training step", render_latency),
+    (r"success_.*\.json", "Success and convergence", render_success),
+    (r"ablations_.*\.json", "Ablations", render_ablations),
+    (r"multimodal\.json", "Multi-modality (toy)", render_multimodal),
+    (r"env_throughput_.*\.json", "Environment throughput", render_env_throughput),
+    (r"sampler\.json", "Replay-buffer sampling", render_sampler),
+]
+
+
+def build_section(results: Path = RESULTS) -> str:
+    parts = [BEGIN, ""]
+    unrendered = []
+    files = sorted(results.glob("*.json"))
+    for pattern, title, render in RENDERERS:
+        for path in files:
+            if not re.fullmatch(pattern, path.name):
+                continue
+            data = json.loads(path.read_text())
+            if isinstance(data, dict) and data.get("quick"):
+                continue
+            parts += [f"#### {title} (`{path.as_posix()}`)", "", f"Machine: {_machine(data)}.", ""]
+            parts += [render(data), ""]
+    rendered = {p.name for p in files for pat, _, _ in RENDERERS if re.fullmatch(pat, p.name)}
+    unrendered = [p.name for p in files if p.name not in rendered]
+    if unrendered:
+        parts += ["Other saved results: " + ", ".join(f"`{n}`" for n in unrendered) + ".", ""]
+    parts.append(END)
+    return "\n".join(parts)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--readme", default="README.md")
+    parser.add_argument("--results", default=str(RESULTS))
+    parser.add_argument("--check", action="store_true", help="exit 1 when the README's section differs")
+    args = parser.parse_args(argv)
+    readme = Path(args.readme)
+    text = readme.read_text()
+    if BEGIN not in text or END not in text:
+        print(f"{readme}: no results markers ({BEGIN} ... {END}); add them where the section goes")
+        return 2
+    section = build_section(Path(args.results))
+    new = text[: text.index(BEGIN)] + section + text[text.index(END) + len(END) :]
+    if args.check:
+        if new != text:
+            print(f"{readme}: results section is out of date; run python -m benchmarks.report")
+            return 1
+        return 0
+    readme.write_text(new)
+    print(f"{readme}: results section rebuilt from {args.results}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

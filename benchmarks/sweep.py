@@ -1,0 +1,105 @@
+"""Running ``l1flow-rl train`` and ``l1flow-rl eval`` for benchmark grids, resumably.
+
+Each run is a subprocess (one crash or a simulator fault ends that run, not the sweep) in its own
+run directory under the sweep's root; a run whose ``eval.json`` exists is read, not repeated, and
+an interrupted one resumes from its ``latest.pt``. Hand-written rather than hydra multirun because
+a sweep here also re-scores finished networks under other samplers and must survive being stopped
+and started again across sessions.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = ["Run", "mean_and_spread", "read_history", "rescore", "steps_to_fraction_of_best", "train"]
+
+
+@dataclass
+class Run:
+    """One training run of a grid: its name, overrides and where it lives."""
+
+    name: str
+    overrides: list[str]
+    run_dir: Path
+    log: Path = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.log = self.run_dir.with_suffix(".log")
+
+    @property
+    def done(self) -> bool:
+        return (self.run_dir / "eval.json").is_file()
+
+
+def _cli(args: Sequence[str], log: Path, env: dict[str, str] | None = None) -> int:
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with log.open("a") as out:
+        out.write("\n$ l1flow-rl " + " ".join(args) + "\n")
+        out.flush()
+        proc = subprocess.run(
+            [sys.executable, "-m", "l1flow_rl.cli", *args],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, **(env or {})},
+            check=False,
+        )
+    return proc.returncode
+
+
+def train(run: Run, data_dir: Path) -> dict[str, Any]:
+    """Train (or resume, or just read) ``run``; returns its final eval.json."""
+    if not run.done:
+        resume = ["resume=true"] if (run.run_dir / "checkpoints" / "latest.pt").is_file() else []
+        args = ["train", *run.overrides, f"run_dir={run.run_dir}", f"data_dir={data_dir}", *resume]
+        code = _cli(args, run.log)
+        if code != 0:
+            raise RuntimeError(f"{run.name}: l1flow-rl train exited with {code}; see {run.log}")
+    return json.loads((run.run_dir / "eval.json").read_text())
+
+
+def rescore(run: Run, name: str, overrides: Sequence[str], checkpoint: str = "latest.pt") -> dict[str, Any]:
+    """Evaluate the run's trained network under other settings (a sampler swap, another protocol);
+    results go to ``<run_dir>/rescore_<name>/eval.json``."""
+    out = run.run_dir / f"rescore_{name}"
+    if not (out / "eval.json").is_file():
+        ckpt = run.run_dir / "checkpoints" / checkpoint
+        code = _cli(["eval", f"checkpoint={ckpt}", f"run_dir={out}", *overrides], run.log)
+        if code != 0:
+            raise RuntimeError(f"{run.name}: l1flow-rl eval ({name}) exited with {code}; see {run.log}")
+    return json.loads((out / "eval.json").read_text())
+
+
+def read_history(run: Run) -> list[dict[str, Any]]:
+    """The run's evaluations during training (step, success_once, ...), from ``history.json``."""
+    path = run.run_dir / "history.json"
+    if not path.is_file():
+        return []
+    return list(json.loads(path.read_text()).get("evals", []))
+
+
+def steps_to_fraction_of_best(curve: Sequence[tuple[int, float]], fraction: float = 0.9) -> int | None:
+    """The first step at which the curve reaches ``fraction`` of its best value (None: empty or 0)."""
+    if not curve:
+        return None
+    best = max(v for _, v in curve)
+    if best <= 0:
+        return None
+    return next(step for step, v in curve if v >= fraction * best)
+
+
+def mean_and_spread(values: Sequence[float]) -> dict[str, float]:
+    """Mean, sample standard deviation, min and max over seeds."""
+    n = len(values)
+    if n == 0:
+        return {"mean": math.nan, "std": math.nan, "min": math.nan, "max": math.nan, "n": 0}
+    mean = sum(values) / n
+    var = sum((v - mean) ** 2 for v in values) / (n - 1) if n > 1 else 0.0
+    return {"mean": mean, "std": math.sqrt(var), "min": min(values), "max": max(values), "n": n}
