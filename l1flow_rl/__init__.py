@@ -10,13 +10,14 @@ Quick use::
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.ema import dp_ema_decay, make_ema
 from l1flow_rl.normalizer import Normalizer, NormalizerDict
-from l1flow_rl.objectives import DiffusionLoss, FlowMatchingLoss, L1FlowLoss, RegressionLoss
+from l1flow_rl.objectives import DiffusionLoss, FlowMatchingLoss, FlowQLoss, L1FlowLoss, RegressionLoss
 from l1flow_rl.policy import ChunkPolicy
 
 __all__ = [
     "ChunkPolicy",
     "DiffusionLoss",
     "FlowMatchingLoss",
+    "FlowQLoss",
     "L1FlowActor",
     "L1FlowLoss",
     "Normalizer",
