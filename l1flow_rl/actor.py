@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 
-from l1flow_rl.flow.samplers import ChunkSampler, TwoStepSampler
+from l1flow_rl.flow.samplers import ChunkSampler, TwoStepSampler, make_sampler
 from l1flow_rl.networks.encoders import ObservationEncoder, StateEncoder
 from l1flow_rl.networks.unet1d import ConditionalUnet1D
 from l1flow_rl.policy import STATE_KEY, ChunkPolicy
@@ -53,6 +54,28 @@ class L1FlowActor(TensorDictModule):
     @property
     def sampler(self) -> ChunkSampler:
         return self.policy.sampler
+
+    def with_sampler(self, sampler: str | ChunkSampler, **sampler_kwargs: Any) -> L1FlowActor:
+        """The same trained network under another sampler: a new actor sharing this one's network,
+        encoder and normalisers. ``sampler`` is a :class:`~l1flow_rl.flow.ChunkSampler` or a name
+        (``two_step``, ``euler``, ``velocity_euler``, ``ddpm``, ``ddim``, ``direct``) with its
+        keyword arguments. A sampler that reads another prediction type than the network was trained
+        for is refused with :class:`~l1flow_rl.flow.samplers.SamplerMismatchError`, which lists the
+        samplers that fit.
+
+        Example:
+            >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64))
+            >>> euler4 = actor.with_sampler("euler", steps=4)
+            >>> euler4.sampler.nfe, actor.sampler.nfe, euler4.policy.net is actor.policy.net
+            (4, 2, True)
+        """
+        new = self.policy.with_sampler(make_sampler(sampler, **sampler_kwargs))
+        return type(self)(new, in_keys=self.in_keys, out_keys=self.out_keys)
+
+    def set_sampler(self, sampler: str | ChunkSampler, **sampler_kwargs: Any) -> L1FlowActor:
+        """In-place variant of :meth:`with_sampler`; returns ``self``."""
+        self.policy.set_sampler(make_sampler(sampler, **sampler_kwargs))
+        return self
 
     @classmethod
     def build(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping
 
@@ -11,7 +12,7 @@ from tensordict.nn import InteractionType
 from tensordict.nn.probabilistic import interaction_type
 from torch import Tensor, nn
 
-from l1flow_rl.flow.samplers import ChunkSampler
+from l1flow_rl.flow.samplers import ChunkSampler, check_sampler_fits
 from l1flow_rl.networks.encoders import ObservationEncoder
 from l1flow_rl.networks.unet1d import ConditionalUnet1D
 from l1flow_rl.normalizer import Normalizer, NormalizerDict
@@ -81,6 +82,32 @@ class ChunkPolicy(nn.Module):
         norm_shapes = {k: s for k, s in encoder.obs_shapes.items() if len(s) == 1} if normalize_obs else {}
         self.obs_normalizer = NormalizerDict(norm_shapes)
         self.action_normalizer = Normalizer(action_dim)
+
+    # -- sampler swap (re-scoring one trained network under another sampler) -----------------
+    def _check_sampler(self, sampler: ChunkSampler) -> None:
+        check_sampler_fits(self.sampler, sampler)  # the current sampler stands for what the net learnt
+        if sampler.uses_timestep != bool(self.net.timestep_embed_dim):
+            raise ValueError(
+                f"{sampler!r} {'needs' if sampler.uses_timestep else 'takes no'} timestep, but the network "
+                f"was built with timestep_embed_dim={self.net.timestep_embed_dim}"
+            )
+
+    def set_sampler(self, sampler: ChunkSampler) -> ChunkPolicy:
+        """Sample with ``sampler`` from now on; refused (listing the samplers that fit) when it reads
+        another prediction type than the network was trained for."""
+        self._check_sampler(sampler)
+        self.sampler = sampler
+        return self
+
+    def with_sampler(self, sampler: ChunkSampler) -> ChunkPolicy:
+        """A policy that shares this one's network, encoder and normalisers (the same tensors) and
+        samples with ``sampler``; this policy is unchanged."""
+        self._check_sampler(sampler)
+        clone = copy.copy(self)
+        for registry in ("_parameters", "_buffers", "_modules"):  # own registries, shared members
+            clone.__dict__[registry] = dict(self.__dict__[registry])
+        clone.sampler = sampler
+        return clone
 
     # -- observation handling -------------------------------------------------------------
     def as_obs_dict(self, observation: Tensor | TensorDictBase, key: str = "observation") -> TensorDictBase:

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-__all__ = ["TrainConfig"]
+__all__ = ["LOGGERS", "TrainConfig"]
+
+#: TorchRL loggers a run can write to (``train.logger``)
+LOGGERS = ("csv", "tensorboard", "wandb")
 
 
 @dataclass
@@ -22,5 +25,9 @@ class TrainConfig:
     checkpoint_every: int = 1000
     log_every: int = 50
     eval_every: int = 0  # 0: evaluate only at the end
-    logger: str = "csv"  # csv | tensorboard | wandb
+    logger: str = "csv"  # LOGGERS: csv | tensorboard | wandb
+    project: str = "l1flow-rl"  # W&B project
+    group: str | None = None  # W&B group (e.g. one per sweep)
+    # The logger's run name; None: the run directory's name on W&B, "train" (its log folder) otherwise.
+    run_name: str | None = None
     prefetch: int = 0  # batches sampled ahead by threads; 0 keeps resume bit-exact

@@ -1,46 +1,91 @@
-"""Evaluation during and after training: one env, made once, reused; never touches the training RNG."""
+"""Evaluations of a training run: validation seeds while training (they choose the best checkpoint)
+and separate test seeds at the end (the reported figures). One env, made once and reused; an
+evaluation never touches the training RNG."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 __all__ = ["PeriodicEvaluator"]
 
 
 class PeriodicEvaluator:
-    """Creates the evaluation env once and reuses it; evaluation never touches the training RNG."""
+    """Runs the protocol's evaluation of ``cfg`` on ``"val"`` or ``"test"`` seeds and sends every
+    metric (and video) to ``logger`` under ``val/...`` or ``test/...``.
 
-    def __init__(self, cfg: DictConfig, device: torch.device) -> None:
-        self.cfg, self.device, self.env = cfg, device, None
+    Made before any demonstration is generated, so that a bad protocol or overlapping seed ranges
+    fail first.
+    """
 
-    def __call__(self, actor, step: int, video_dir: Path | None = None) -> dict[str, Any]:
-        from l1flow_rl.envs import make_env
+    def __init__(self, cfg: DictConfig, device: torch.device, logger: Any = None) -> None:
+        from l1flow_rl.evaluation.plan import resolve_plan, task_from
+
+        self.cfg, self.device, self.env, self.logger = cfg, device, None, logger
+        self.plan = resolve_plan(cfg, task_from(cfg.task), device)
+
+    @property
+    def headline(self) -> str:
+        """The metric that picks the best checkpoint (the protocol's headline)."""
+        return self.plan.headline
+
+    def __call__(
+        self, actor, step: int, video_dir: Path | None = None, split: str = "val"
+    ) -> dict[str, Any]:
         from l1flow_rl.evaluation import evaluate
+        from l1flow_rl.workspace.logging import log_evaluation
 
+        episodes, seed = self.plan.split(split)
         if self.env is None:
-            task = OmegaConf.to_object(self.cfg.task)
-            self.env = make_env(
-                task,
-                num_envs=self.cfg.eval.num_envs,
-                device=str(self.device),
-                obs_horizon=self.cfg.policy.obs_horizon,
-            )
+            self.env = self.plan.make_env(self.cfg.policy.obs_horizon)
+        filmed = self.plan.video_episodes if video_dir is not None else 0
         with torch.random.fork_rng(devices=[]), torch.no_grad():
-            metrics = evaluate(
+            result = evaluate(
                 actor,
                 self.env,
-                episodes=self.cfg.eval.episodes,
-                seed=self.cfg.eval.seed,
-                deterministic=self.cfg.eval.deterministic,
-                video_dir=video_dir,
-                video_episodes=self.cfg.eval.video_episodes if video_dir is not None else 0,
+                episodes=episodes,
+                seed=seed,
+                deterministic=self.plan.deterministic,
+                episode_metrics=self.plan.episode_metrics,
+                video_dir=video_dir if filmed else None,
+                video_episodes=filmed,
+                video_fps=self.plan.video_fps,
             )
-        metrics["step"] = step
-        return metrics
+        result = {**self.plan.record(split, result), **result, "step": step}
+        if self.logger is not None:
+            log_evaluation(self.logger, result, step, prefix=split)
+        return result
+
+    def history_row(self, result: dict[str, Any]) -> dict[str, Any]:
+        """The few numbers of an evaluation that the run keeps (plots, checkpoint choice)."""
+        keys = ("step", "split", "success_once", "success_at_end", "return", "episode_length", "episodes")
+        row = {k: result[k] for k in keys if k in result}
+        row[self.headline] = result[self.headline]
+        return row
+
+    def selection(self, evals: Sequence[dict[str, Any]], final_step: int) -> dict[str, Any]:
+        """Which model the test figures belong to: the best validation evaluation (first of equals),
+        or the final model when no validation ran."""
+        val = [e for e in evals if e.get("split", "val") == "val"]
+        if not val:
+            return {
+                "split": None,
+                "step": final_step,
+                "rule": "final model: no validation during training (train.eval_every=0)",
+            }
+        best = max(val, key=lambda e: e[self.headline])  # max keeps the first of equal values
+        return {
+            "split": "val",
+            "step": best["step"],
+            "rule": f"highest validation {self.headline}",
+            "value": best[self.headline],
+            "seeds": {"first": self.plan.val_seed, "episodes": self.plan.val_episodes},
+            "evaluations": [{"step": e["step"], self.headline: e[self.headline]} for e in val],
+        }
 
     def close(self) -> None:
         if self.env is not None and not self.env.is_closed:

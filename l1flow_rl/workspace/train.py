@@ -18,10 +18,12 @@ import torch
 import torch.distributed as dist
 from omegaconf import DictConfig, OmegaConf
 
+from l1flow_rl.evaluation.evaluator import sampler_record
 from l1flow_rl.workspace.build import build_actor, build_loss
 from l1flow_rl.workspace.checkpoint import (
     check_compatible,
     get_rng_state,
+    load_actor,
     load_checkpoint,
     save_checkpoint,
     set_rng_state,
@@ -75,6 +77,9 @@ def run_train(cfg: DictConfig) -> int:
             "or choose another run_dir"
         )
 
+    # Resolved before any demonstration is made: a bad protocol or overlapping seeds fail first.
+    evaluator = PeriodicEvaluator(cfg, device) if rank == 0 and cfg.eval.episodes > 0 else None
+
     # -- data --------------------------------------------------------------------------------
     t_start = time.perf_counter()
     dataset = resolve_dataset(cfg, rank, world)
@@ -119,8 +124,17 @@ def run_train(cfg: DictConfig) -> int:
     if is_main:
         run_dir.mkdir(parents=True, exist_ok=True)
         OmegaConf.save(cfg, run_dir / "config.yaml")
-        logger = make_logger(tcfg.logger, run_dir, logger_state)
-    evaluator = PeriodicEvaluator(cfg, device) if is_main and cfg.eval.episodes > 0 else None
+        logger = make_logger(
+            tcfg.logger,
+            run_dir,
+            logger_state,
+            project=tcfg.project,
+            group=tcfg.group,
+            run_name=tcfg.run_name,
+            config=OmegaConf.to_container(cfg, resolve=True),
+        )
+        if evaluator is not None:
+            evaluator.logger = logger  # every metric of every evaluation, and its videos
 
     def checkpoint_state() -> dict[str, Any]:
         state = trainer.state_dict()
@@ -166,15 +180,15 @@ def run_train(cfg: DictConfig) -> int:
                 and step % tcfg.eval_every == 0
                 and step < tcfg.steps
             ):
-                result = evaluator(trainer.ema_actor, step)
-                evals.append(_headline(result))
-                logger.log_scalar("eval/success_once", result["success_once"], step=step)
+                result = evaluator(trainer.ema_actor, step, split="val")
+                evals.append(evaluator.history_row(result))
+                value = result[evaluator.headline]
                 bar.write(
-                    f"step {step}: success_once={result['success_once']:.3f} "
+                    f"step {step}: validation {evaluator.headline}={value:.3f} "
                     f"over {result['episodes']} episodes"
                 )
-                if result["success_once"] > best:
-                    best = result["success_once"]
+                if value > best:
+                    best = value
                     save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())
             if step % tcfg.checkpoint_every == 0 or step == tcfg.steps:
                 save_checkpoint(latest, checkpoint_state())
@@ -195,15 +209,25 @@ def run_train(cfg: DictConfig) -> int:
         "train_seconds": round(train_seconds, 1),
     }
     if evaluator is not None:
-        result = evaluator(trainer.ema_actor, trainer.step, video_dir=run_dir / "videos")
-        evaluator.close()
-        evals.append(_headline(result))
-        logger.log_scalar("eval/success_once", result["success_once"], step=trainer.step)
-        if result["success_once"] > best or not (ckpt_dir / "best.pt").is_file():
-            best = max(best, result["success_once"])
+        if evals:  # validation ran during training: the final model competes on the same seeds
+            val = evaluator(trainer.ema_actor, trainer.step, split="val")
+            evals.append(evaluator.history_row(val))
+            if val[evaluator.headline] > best:
+                best = val[evaluator.headline]
+                save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())
+        else:  # the final model is the only candidate
             save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())
         save_checkpoint(latest, checkpoint_state())
-        (run_dir / "eval.json").write_text(json.dumps({**result, "step": trainer.step}, indent=2))
+        # The reported figures: the chosen model on the test seeds, which chose nothing.
+        selection = evaluator.selection(evals, trainer.step)
+        chosen = trainer.ema_actor
+        if selection["step"] != trainer.step:
+            chosen = load_actor(ckpt_dir / "best.pt", use_ema=True, map_location=device)[0]
+        result = evaluator(chosen, trainer.step, video_dir=run_dir / "videos", split="test")
+        evaluator.close()
+        evals.append(evaluator.history_row(result))
+        result = {**result, "selection": selection, "sampler": sampler_record(chosen)}
+        (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
         summary.update(
             success_once=result["success_once"],
             success_at_end=result["success_at_end"],
@@ -231,7 +255,3 @@ def _set_buffer_rng(buffer, state: torch.Tensor) -> None:
     generator.set_state(state)
     buffer.set_rng(generator)
 
-
-def _headline(result: dict[str, Any]) -> dict[str, Any]:
-    keys = ("step", "success_once", "success_at_end", "return", "episode_length", "episodes")
-    return {k: result[k] for k in keys if k in result}
