@@ -91,7 +91,10 @@ def test_maniskill_state_file(tmp_path):
     eps = load_episodes(path, control_mode="pd_ee_delta_pos")
     assert eps.shape == (13,) and eps["observation"].shape == (13, 6)
     assert eps["episode"].tolist() == [0] * 5 + [1] * 8 and eps["step"].tolist() == [*range(5), *range(8)]
-    np.testing.assert_array_equal(eps["observation"][5:].numpy(), raw[1]["obs"][:8])  # final obs dropped
+    np.testing.assert_array_equal(eps["observation"][5:].numpy(), raw[1]["obs"][:8])
+    # the observation after each action, the T+1st (final) one included
+    np.testing.assert_array_equal(eps["next", "observation"][5:].numpy(), raw[1]["obs"][1:9])
+    np.testing.assert_array_equal(eps["next", "observation"][4].numpy(), raw[0]["obs"][5])
     np.testing.assert_array_equal(eps["action"][:5].numpy(), raw[0]["actions"])
     np.testing.assert_array_equal(eps["next", "reward"][:5, 0].numpy(), raw[0]["rewards"])
     np.testing.assert_array_equal(
@@ -99,7 +102,14 @@ def test_maniskill_state_file(tmp_path):
     )
     assert eps["next", "done"][:, 0].nonzero().squeeze(1).tolist() == [4, 12]
     assert eps["next", "terminated"][[4, 12], 0].all() and not eps["next", "truncated"].any()
-    assert episodes_metadata(eps)["control_mode"] == "pd_ee_delta_pos"
+    meta = episodes_metadata(eps)
+    assert (meta.format, meta.env_id, meta.control_mode, meta.control) == (
+        "maniskill",
+        "PushCube-v1",
+        "pd_ee_delta_pos",
+        "delta",
+    )
+    assert meta.source == str(path) and meta.has_rewards and meta.has_final_observation
     # a delta-control file pads chunks with zero arm motion by default
     batch = make_chunk_buffer(eps, obs_horizon=2, pred_horizon=8, batch_size=200, seed=0).sample()
     padded_after = batch["action_is_pad"] & (torch.arange(8) > 1)

@@ -14,6 +14,10 @@ Every step of every episode is an anchor by default, so a chunk ends with up to 
 too short to give any window under the cap is an error. ``"action_is_pad"`` marks the padded chunk
 steps (both ends) so a loss can leave them out.
 
+With ``rl_horizon=h`` a window also carries what a chunked critic needs (see
+:mod:`l1flow_rl.data.rl_windows`): the discounted return of the h executed actions, the
+history-stacked observation at t+h, done/terminated/truncated and ``"chunk_valid"``.
+
 TorchRL's ``SliceSampler`` pads only at the end and ``Sequence`` returns flat [B * H] batches that
 read every key at every window row; this pair reads observations at To rows and actions at H rows,
 which keeps image batches small.
@@ -34,6 +38,8 @@ from torchrl.data.replay_buffers.samplers import Sampler
 from torchrl.data.replay_buffers.storages import Storage
 
 from l1flow_rl.data.episodes import EpisodeDataError, episode_bounds, where
+from l1flow_rl.data.metadata import EpisodeMetadata, merge_metadata, strip_metadata
+from l1flow_rl.data.rl_windows import next_key, read_rl_targets
 
 __all__ = ["ChunkLayout", "ChunkStorage", "ChunkWindowSampler"]
 
@@ -52,6 +58,10 @@ class ChunkLayout:
             controllers put the gripper last.
         max_pad_after: at most this many padded steps after an episode's end (None: H - To, every
             step is a window's current step).
+        rl_horizon: h, the executed actions per chunk for RL targets (None: no RL entries); at most
+            H - To + 1 so that ``action_chunk[:, To-1 : To-1+h]`` lies inside the chunk.
+        gamma: the discount of the chunk return.
+        reward_key: the stored per-step reward the chunk return sums.
         source: a name for the data in error messages (a file path).
     """
 
@@ -60,6 +70,9 @@ class ChunkLayout:
     action_pad: ActionPad = "repeat"
     gripper_dims: tuple[int, ...] = (-1,)
     max_pad_after: int | None = None
+    rl_horizon: int | None = None
+    gamma: float = 0.99
+    reward_key: NestedKey = ("next", "reward")
     observation_key: NestedKey = "observation"
     action_key: NestedKey = "action"
     chunk_key: NestedKey = "action_chunk"
@@ -82,12 +95,22 @@ class ChunkLayout:
                 "max_pad_after must be in [0, pred_horizon - obs_horizon = "
                 f"{self.pred_horizon - self.obs_horizon}] or None, got {self.max_pad_after}"
             )
+        if self.rl_horizon is not None:
+            most = self.pred_horizon - self.obs_horizon + 1
+            if not 1 <= self.rl_horizon <= most:
+                raise ValueError(
+                    f"rl_horizon must be in [1, pred_horizon - obs_horizon + 1 = {most}] (the executed "
+                    f"actions action_chunk[:, To-1 : To-1+h] must lie in the chunk), got {self.rl_horizon}"
+                )
+            if not 0.0 < self.gamma <= 1.0:
+                raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
         object.__setattr__(self, "gripper_dims", tuple(int(d) for d in self.gripper_dims))
 
     @property
     def width(self) -> int:
-        """Columns of a window index: To observation rows, then H action rows."""
-        return self.obs_horizon + self.pred_horizon
+        """Columns of a window index: To observation rows, H action rows, then the episode's first row
+        and its end row (exclusive)."""
+        return self.obs_horizon + self.pred_horizon + 2
 
     def is_window_index(self, index: Any) -> bool:
         return isinstance(index, Tensor) and index.dim() == 2 and index.shape[1] == self.width
@@ -138,8 +161,15 @@ class ChunkWindowSampler(Sampler):
     def _episode_table(self, storage: Storage) -> tuple[Tensor, Tensor, Tensor]:
         """(start row, end row) per stored row, and the valid anchor rows; recomputed when the storage
         changes."""
-        key = (len(storage), int(getattr(storage, "_mutation_revision", 0)))
+        alive = getattr(storage, "alive", None)
+        key = (
+            len(storage),
+            int(getattr(storage, "_mutation_revision", 0)),
+            int(getattr(storage, "revision", 0)),
+        )
         if self._cache is None or self._cache[0] != key:
+            if len(storage) == 0:
+                raise EpisodeDataError(f"{self.layout.source}: the buffer holds no complete episode yet")
             data = storage.get(slice(None))
             start, end = episode_bounds(data.get("episode"), self.layout.source)
             rows = torch.arange(start.shape[0])
@@ -148,8 +178,15 @@ class ChunkWindowSampler(Sampler):
                 # the chunk's last row t-To+H may lie at most max_pad_after rows past the episode's last row
                 last_needed = rows - self.layout.obs_horizon + self.layout.pred_horizon
                 valid = last_needed - (end - 1) <= self.layout.max_pad_after
-            self._check_every_episode_has_windows(data.get("episode"), start, valid)
-            self._cache = (key, start, end, valid.nonzero().squeeze(1))
+            if alive is None:
+                self._check_every_episode_has_windows(data.get("episode"), start, valid)
+            else:
+                # online data: rows of overwritten episodes are dead; a short episode gives no window
+                valid &= alive[: valid.shape[0]]
+            anchors = valid.nonzero().squeeze(1)
+            if anchors.numel() == 0:
+                raise EpisodeDataError(f"{self.layout.source}: no episode is long enough to give a window")
+            self._cache = (key, start, end, anchors)
         return self._cache[1], self._cache[2], self._cache[3]
 
     def _check_every_episode_has_windows(self, episode: Tensor, start: Tensor, valid: Tensor) -> None:
@@ -178,7 +215,7 @@ class ChunkWindowSampler(Sampler):
         to, h = self.layout.obs_horizon, self.layout.pred_horizon
         obs_rows = torch.maximum(t.unsqueeze(1) + torch.arange(1 - to, 1), t_start)
         act_rows = (t.unsqueeze(1) + torch.arange(1 - to, h - to + 1)).clamp(min=t_start, max=t_last)
-        return torch.cat([obs_rows, act_rows], dim=1), {}
+        return torch.cat([obs_rows, act_rows, t_start, t_last + 1], dim=1), {}
 
     def _empty(self) -> None:
         self._cache = None
@@ -202,24 +239,48 @@ class ChunkWindowSampler(Sampler):
 class ChunkStorage(LazyMemmapStorage):
     """A ``LazyMemmapStorage`` of steps that also reads chunk windows.
 
-    ``get`` with a window index [B, To + H] from :class:`ChunkWindowSampler` returns a [B] TensorDict:
-    the observation key at the To observation rows ([B, To, ...]), ``chunk_key`` [B, H, A] with the
-    padding rule applied, ``pad_key`` [B, H] (True on padded steps) and every other stored entry at the
-    current step (``"episode"``, ``"step"``, ``("next", "reward")``, ...). Any other index reads rows.
+    ``get`` with a window index [B, To + H + 2] from :class:`ChunkWindowSampler` returns a [B]
+    TensorDict: the observation key at the To observation rows ([B, To, ...]), ``chunk_key`` [B, H, A]
+    with the padding rule applied, ``pad_key`` [B, H] (True on padded steps) and every other stored
+    entry at the current step (``"episode"``, ``"step"``, ``("next", "reward")``, ...; not
+    ``("next", "observation")``). With ``layout.rl_horizon`` the ``"next"`` entries are the chunk's
+    instead (see :mod:`l1flow_rl.data.rl_windows`). Any other index reads rows.
+
+    The episodes' metadata is kept once (``metadata``), not per row. ``alive`` (set by a writer that
+    overwrites old episodes) marks the rows that still belong to a complete episode.
     """
 
     def __init__(self, max_size: int, *, layout: ChunkLayout, **kwargs) -> None:
         super().__init__(max_size, **kwargs)
         self.layout = layout
+        self.metadata: EpisodeMetadata | None = None
+        self.alive: Tensor | None = None
+        self.revision = 0
+
+    def set(self, cursor, data, *, set_cursor: bool = True):
+        if isinstance(data, TensorDictBase):
+            data, meta = strip_metadata(data)
+            if meta is not None:
+                self.metadata = meta if self.metadata is None else merge_metadata([self.metadata, meta])
+        return super().set(cursor, data, set_cursor=set_cursor)
 
     def get(self, index):
         if not self.layout.is_window_index(index):
             return super().get(index)
         lay = self.layout
         data: TensorDictBase = self._storage
-        obs_rows, act_rows = index[:, : lay.obs_horizon], index[:, lay.obs_horizon :]
-        out = _gather(data.exclude(lay.observation_key, lay.action_key), obs_rows[:, -1])
+        to, h = lay.obs_horizon, lay.pred_horizon
+        obs_rows, act_rows = index[:, :to], index[:, to : to + h]
+        start, end = index[:, to + h], index[:, to + h + 1]
+        skip = [lay.observation_key, lay.action_key, next_key(lay.observation_key)]
+        if lay.rl_horizon is not None:
+            skip.append("next")  # replaced by the chunk's entries below
+        out = _gather(data.exclude(*skip), obs_rows[:, -1])
         out.set(lay.observation_key, _gather(data.get(lay.observation_key), obs_rows))
+        if lay.rl_horizon is not None:
+            # a stand-in final observation (the file recorded none) must not be bootstrapped from
+            final_known = self.metadata is None or self.metadata.has_final_observation is not False
+            out.update(read_rl_targets(data, lay, obs_rows[:, -1], start, end, _gather, final_known))
         actions = _gather(data.get(lay.action_key), act_rows)
         col = torch.arange(lay.pred_horizon)
         current = lay.obs_horizon - 1

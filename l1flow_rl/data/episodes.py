@@ -2,20 +2,35 @@
 
 A loaded dataset is a flat TensorDict of steps, episodes one after another:
 
-======================== ========================================================================
-``"episode"``            int64 [N], the episode id (constant over one episode, unique per episode)
-``"step"``               int64 [N], the index of the step inside its episode (0, 1, ...)
-``"observation"``        float32 [N, D], or a TensorDict with ``"state"`` float32 [N, D] and
-                         ``"rgb"`` uint8 [N, 3, H, W]; observation[t] is what the policy saw
-                         before taking action[t] (the final post-episode observation is dropped)
-``"action"``             float32 [N, A]
-``("next", "reward")``   float32 [N, 1], the reward for action[t] (0 where a format has none)
-``("next", "done")``     bool [N, 1], True on each episode's last step
-``("next", "terminated")`` / ``("next", "truncated")``  bool [N, 1], how the last step ended
-======================== ========================================================================
+============================== ==================================================================
+``"episode"``                  int64 [N], the episode id (constant over one episode, unique per episode)
+``"step"``                     int64 [N], the index of the step inside its episode (0, 1, ...)
+``"observation"``              float32 [N, D], or a TensorDict with ``"state"`` float32 [N, D] and
+                               image entries uint8 [N, 3, H, W]; observation[t] is what the policy
+                               saw before taking action[t]
+``"action"``                   float32 [N, A]
+``("next", "observation")``    the observation after action[t]: observation[t + 1] inside an episode,
+                               and at its last step the final observation (kept when the format
+                               records it; else the last observation repeated, and the metadata's
+                               ``has_final_observation`` is False)
+``("next", "reward")``         float32 [N, 1], the reward for action[t] (a format without rewards
+                               stores 0 and says so in the metadata's ``has_rewards``)
+``("next", "done")``           bool [N, 1], True on each episode's last step
+``("next", "terminated")``     bool [N, 1], True on the last step of an episode that ended in a
+                               terminal state (success or failure)
+``("next", "truncated")``      bool [N, 1], True on the last step of an episode that stopped otherwise
+``"episodes_metadata"``        non-tensor: format, source, env id, control (see
+                               :mod:`l1flow_rl.data.metadata`)
+============================== ==================================================================
 
 Formats add what they know on top, e.g. ManiSkill's ``("next", "success")`` and
 ``("next", "sparse_reward")``.
+
+Storing ``("next", "observation")`` whole costs a second copy of the observations. For state data
+that is small; for image data it doubles the stored frames, which stay memory-mapped on disk
+(``load_episodes(memmap_dir=...)``), and a batch reads only the To frames it needs. The flat copy is
+kept because it is exactly what a TorchRL collector writes, so demonstrations and online data share
+one layout and one storage.
 """
 
 from __future__ import annotations
@@ -120,21 +135,24 @@ def assemble_episode(
     *,
     reward: Tensor | None = None,
     terminated: bool = False,
+    final_observation: Tensor | Mapping[str, Tensor] | None = None,
     next_extra: Mapping[str, Tensor] | None = None,
 ) -> TensorDict:
-    """One validated episode ([T] steps, arrays already checked) in the layout above."""
+    """One validated episode ([T] steps, arrays already checked) in the layout above.
+
+    ``final_observation`` is the observation after the last action (one step, no time dimension);
+    without it the last observation is repeated there (the reader's metadata must then say
+    ``has_final_observation=False``).
+    """
     steps = action.shape[0]
-    if isinstance(observation, Mapping):
-        obs: Tensor | TensorDict = TensorDict(
-            {k: v if v.dtype == torch.uint8 else v.float() for k, v in observation.items()},
-            batch_size=[steps],
-        )
-    else:
-        obs = observation.float()
+    obs = _observation(observation, steps)
+    final = obs[-1] if final_observation is None else _observation(final_observation, None)
+    next_obs = torch.cat([obs[1:], final.unsqueeze(0)], 0)
     done = torch.zeros(steps, 1, dtype=torch.bool)
     done[-1] = True
     term = done & terminated
     nxt = {
+        "observation": next_obs,
         "reward": (reward.float() if reward is not None else torch.zeros(steps)).reshape(steps, 1),
         "done": done,
         "terminated": term,
@@ -152,6 +170,16 @@ def assemble_episode(
         },
         batch_size=[steps],
     )
+
+
+def _observation(observation: Tensor | Mapping[str, Tensor], steps: int | None) -> Tensor | TensorDict:
+    """Observations as stored: float flat entries, uint8 images kept; ``steps=None`` for one step."""
+    if isinstance(observation, Mapping):
+        return TensorDict(
+            {k: v if v.dtype == torch.uint8 else v.float() for k, v in observation.items()},
+            batch_size=[] if steps is None else [steps],
+        )
+    return observation.float()
 
 
 def episode_bounds(episode: Tensor, source: object = "episodes") -> tuple[Tensor, Tensor]:

@@ -9,6 +9,9 @@ Supported (detected from the content, not the name):
 
 With ``memmap_dir`` the episodes stream one at a time into a TorchRL ``LazyMemmapStorage`` under that
 directory, so data larger than RAM loads; opening the same source again reuses the stored copy.
+
+What the reader knows about the data (format, source, env id, control, whether rewards and final
+observations were recorded) travels inside the episodes; read it with :func:`episodes_metadata`.
 """
 
 from __future__ import annotations
@@ -29,12 +32,14 @@ from l1flow_rl.data.formats.dp_zarr import DiffusionPolicyZarr
 from l1flow_rl.data.formats.lerobot import LeRobotDirectory, is_raw_lerobot, is_torchrl_lerobot
 from l1flow_rl.data.formats.maniskill import ManiSkillFile
 from l1flow_rl.data.formats.robomimic import RobomimicFile
+from l1flow_rl.data.metadata import EpisodeMetadata, attach_metadata, episodes_metadata, strip_metadata
 
 __all__ = ["episodes_metadata", "load_episodes", "open_episode_file"]
 
 #: Written beside a memory-mapped copy: where it came from (for reuse checks and error messages).
 SOURCE_FILE = "l1flow_source.json"
-_META_ATTR = "_l1flow_episodes_metadata"
+#: Version of the step layout in a stored copy; copies of an older layout are rebuilt.
+LAYOUT_VERSION = 2
 
 
 def _is_zarr(path: Path) -> bool:
@@ -68,19 +73,6 @@ def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
         return reader(path, **options)
     except TypeError as err:
         raise TypeError(f"{path}: option not understood by the {reader.format_name} reader: {err}") from err
-
-
-def episodes_metadata(episodes: TensorDictBase) -> dict:
-    """What :func:`load_episodes` knew about the data (format, source, env id, control mode, and
-    ``memmap_dir`` for a stored copy); {} for episodes it did not make."""
-    return dict(episodes.__dict__.get(_META_ATTR) or {})
-
-
-def _attach(episodes: TensorDictBase, meta: dict) -> TensorDictBase:
-    # TensorDicts carry no user metadata; a plain attribute on this object is enough for the
-    # make_chunk_buffer(load_episodes(...)) hand-over (a memory-mapped copy keeps it on disk).
-    episodes.__dict__[_META_ATTR] = meta
-    return episodes
 
 
 def _episode_lengths(reader: EpisodeFile) -> tuple[list[int], list[int]]:
@@ -117,6 +109,7 @@ def _fingerprint(path: Path, options: dict) -> dict:
         "bytes": sum(p.stat().st_size for p in files),
         "mtime_ns": max(p.stat().st_mtime_ns for p in files),
         "options": {k: repr(v) for k, v in sorted(options.items())},
+        "layout": LAYOUT_VERSION,
     }
 
 
@@ -125,6 +118,11 @@ def _load_memmap(reader: EpisodeFile, options: dict, target: Path, progress: boo
     marker = target / SOURCE_FILE
     if marker.is_file():
         stored = json.loads(marker.read_text())
+        if {**stored["fingerprint"], "layout": LAYOUT_VERSION} == fingerprint and stored["fingerprint"].get(
+            "layout"
+        ) != LAYOUT_VERSION:
+            shutil.rmtree(target)  # our own copy of this very source in an older step layout: rebuild
+            return _load_memmap(reader, options, target, progress)
         if stored["fingerprint"] != fingerprint:
             raise EpisodeDataError(
                 f"{target}: holds a stored copy of {stored['fingerprint']['source']} (or of an older "
@@ -149,7 +147,7 @@ def _load_memmap(reader: EpisodeFile, options: dict, target: Path, progress: boo
         episodes = tqdm(list(episodes), desc=f"storing {reader.path.name}", unit="episode")
     try:
         for e, n in episodes:
-            part = reader.read_episode(e)
+            part, _ = strip_metadata(reader.read_episode(e))  # kept once in the marker, not per row
             try:
                 storage.set(range(row, row + n), part)
             except (RuntimeError, KeyError, ValueError) as err:
@@ -184,8 +182,10 @@ def load_episodes(
         (torch.Size([7000, 35]), torch.Size([7000, 4]), torch.Size([7000, 1]))
     """
     with open_episode_file(path, **options) as reader:
+        meta = EpisodeMetadata.from_dict(reader.metadata)
         if memmap_dir is not None:
             data = _load_memmap(reader, options, Path(memmap_dir), progress)
-            return _attach(data, {**reader.metadata, "memmap_dir": str(Path(memmap_dir).resolve())})
+            extra = {**meta.extra, "memmap_dir": str(Path(memmap_dir).resolve())}
+            return attach_metadata(data, EpisodeMetadata.from_dict({**meta.__dict__, "extra": extra}))
         ids, _ = _episode_lengths(reader)
-        return _attach(_stack(reader, ids, [reader.read_episode(e) for e in ids]), reader.metadata)
+        return attach_metadata(_stack(reader, ids, [reader.read_episode(e) for e in ids]), meta)

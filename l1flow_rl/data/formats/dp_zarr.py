@@ -1,11 +1,13 @@
 """Diffusion Policy's zarr replay buffer (e.g. ``pusht_cchi_v7_replay.zarr``).
 
 ``data/<key>`` arrays hold every step of every episode back to back; ``meta/episode_ends`` holds the
-exclusive end row of each episode. The format has no rewards or done flags: ``("next", "reward")``
-is 0 and ``("next", "done")`` marks each episode's last step. Images (``data/img``, float values in
-[0, 255] in Diffusion Policy's files) become uint8 ``"rgb"``. Note that Diffusion Policy's PushT image
-policy feeds only the agent position (``state[:, :2]``) next to the image; the default here keeps the
-whole ``data/state``.
+exclusive end row of each episode. The format has no rewards, done flags or final observation:
+``("next", "reward")`` is 0 (metadata ``has_rewards=False``), ``("next", "done")`` marks each
+episode's last step, which counts as truncated, and the last observation stands in for the final one
+(``has_final_observation=False``). PushT's actions are absolute targets (``control="absolute"``).
+Images (``data/img``, float values in [0, 255] in Diffusion Policy's files) become uint8 ``"rgb"``.
+Note that Diffusion Policy's PushT image policy feeds only the agent position (``state[:, :2]``) next
+to the image; the default here keeps the whole ``data/state``.
 """
 
 from __future__ import annotations
@@ -91,6 +93,15 @@ class DiffusionPolicyZarr(EpisodeFile):
                     f"ends at {int(ends[-1])} (truncated or mismatched arrays)"
                 )
         self.starts, self.ends = starts.tolist(), ends.tolist()
+
+    @property
+    def metadata(self) -> dict:
+        return {
+            **super().metadata,
+            "control": "absolute",  # Diffusion Policy's zarr datasets (PushT, robomimic abs) use targets
+            "has_rewards": False,
+            "has_final_observation": False,
+        }
 
     def episode_ids(self) -> list[int]:
         return list(range(len(self.ends)))

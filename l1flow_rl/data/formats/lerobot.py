@@ -5,7 +5,8 @@ TorchRL serves a LeRobot dataset offline from its converted, memory-mapped copy
 what this reader opens: pass that directory. The raw hub layout (``meta/info.json`` plus parquet
 files) needs ``pyarrow``/``datasets`` to read, and neither is a dependency here, so such a directory
 gets an error that says how to convert it. Video-encoded cameras need ``torchcodec`` to decode and
-are refused for the same reason; cameras stored as frames work.
+are refused for the same reason; cameras stored as frames work. LeRobot keeps no observation after
+an episode's last action, and its control kind is not recorded (the task config decides).
 """
 
 from __future__ import annotations
@@ -92,6 +93,15 @@ class LeRobotDirectory(EpisodeFile):
             )
         ends = torch.cumsum(counts, 0)
         self._rows = {int(e): (int(end - n), int(end)) for e, n, end in zip(ids, counts, ends)}
+
+    @property
+    def metadata(self) -> dict:
+        keys = self.data.keys(include_nested=True)
+        return {
+            **super().metadata,
+            "has_rewards": ("next", "reward") in keys,
+            "has_final_observation": False,  # LeRobot stores no observation after the last action
+        }
 
     def episode_ids(self) -> list[int]:
         return list(self._rows)

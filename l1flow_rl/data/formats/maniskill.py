@@ -4,8 +4,11 @@ State files store ``obs`` as one flat array [T+1, D]; rgb files store the observ
 flattened the way ManiSkill's ``FlattenRGBDObservationWrapper`` does (``agent`` then ``extra`` leaves
 as ``"state"``, the camera as channels-first ``"rgb"``), so offline data matches the live env.
 Rewards: ``("next", "reward")`` is the recorded reward (the replay's ``--reward-mode``, e.g.
-``normalized_dense``), or the sparse reward where none was recorded; ``("next", "sparse_reward")`` is
-ManiSkill's sparse reward, success - fail, rebuilt from the per-step flags.
+``normalized_dense``), or the sparse reward where none was recorded (then the metadata says
+``has_rewards=False``, and RL refuses the file unless told to use ``("next", "sparse_reward")``);
+``("next", "sparse_reward")`` is ManiSkill's sparse reward, success - fail, rebuilt from the per-step
+flags. The T+1st observation ManiSkill records is the final observation, ``("next", "observation")``
+at the last step.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from l1flow_rl.data.episodes import (
     where,
 )
 from l1flow_rl.data.formats.base import EpisodeFile, open_h5
+from l1flow_rl.data.metadata import control_of
 
 __all__ = ["ManiSkillFile"]
 
@@ -81,13 +85,26 @@ class ManiSkillFile(EpisodeFile):
 
     @property
     def metadata(self) -> dict:
+        ids = self.episode_ids()
         return {
             "format": self.format_name,
             "source": str(self.path),
             "env_id": self.env_info.get("env_id"),
             "control_mode": self.control_mode,
+            "control": control_of(self.control_mode),
+            "has_rewards": all("rewards" in self.h5[f"traj_{e}"] for e in ids),
+            "has_final_observation": all(self._obs_rows(e) == self.episode_length(e) + 1 for e in ids),
             "obs_mode": self.obs_mode,
         }
+
+    def _obs_rows(self, episode: int) -> int:
+        node = self._dataset(episode, "obs")
+        while isinstance(node, h5py.Group):  # rgb files: the first leaf of agent/ tells the row count
+            children = [node[k] for k in ("agent", "extra", *node.keys()) if k in node]
+            if not children:
+                return -1
+            node = children[0]
+        return node.shape[0]
 
     def episode_ids(self) -> list[int]:
         return [int(ep["episode_id"]) for ep in self.episodes]
@@ -108,10 +125,11 @@ class ManiSkillFile(EpisodeFile):
         node = self._dataset(episode, "obs")
         key = f"traj_{episode}/obs"
         if isinstance(node, h5py.Dataset):
-            obs = check_steps(
-                as_tensor(node[()], self.path, episode, key), steps, self.path, episode, key, extra=1
-            )
-            return check_finite(obs.float(), self.path, episode, key)
+            full = as_tensor(node[()], self.path, episode, key)
+            obs = check_steps(full, steps, self.path, episode, key, extra=1)
+            final = full[steps] if full.shape[0] > steps else None
+            check_finite(full.float(), self.path, episode, key)
+            return obs.float(), None if final is None else final.float()
         from l1flow_rl.envs.maniskill.obs import flatten_maniskill_obs
 
         wanted = {g: node[g] for g in ("agent", "extra", "sensor_data") if g in node}
@@ -120,12 +138,21 @@ class ManiSkillFile(EpisodeFile):
             flat = flatten_maniskill_obs(raw, camera=self.camera)
         except (KeyError, TypeError, ValueError) as err:
             raise EpisodeDataError(f"{where(self.path, episode, key)}: {err}") from err
-        state = check_steps(flat["state"], steps, self.path, episode, f"{key}/agent+extra", extra=1)
-        check_finite(state, self.path, episode, f"{key}/agent+extra")
+        full_state = flat["state"]
+        state = check_steps(full_state, steps, self.path, episode, f"{key}/agent+extra", extra=1)
+        check_finite(full_state, self.path, episode, f"{key}/agent+extra")
+        has_final = full_state.shape[0] > steps
         if "rgb" not in flat:
-            return state
-        rgb = check_steps(flat["rgb"], steps, self.path, episode, f"{key}/sensor_data", extra=1)
-        return {"state": state, "rgb": to_uint8_image(rgb, self.path, episode, key, channels_last=False)}
+            return state, full_state[steps] if has_final else None
+        check_steps(flat["rgb"], steps, self.path, episode, f"{key}/sensor_data", extra=1)
+        if (flat["rgb"].shape[0] > steps) != has_final:
+            raise EpisodeDataError(
+                f"{where(self.path, episode, key)}: the camera has {flat['rgb'].shape[0]} frames but the "
+                f"state {full_state.shape[0]} rows"
+            )
+        rgb = to_uint8_image(flat["rgb"], self.path, episode, key, channels_last=False)
+        obs = {"state": state, "rgb": rgb[:steps]}
+        return obs, {"state": full_state[steps], "rgb": rgb[steps]} if has_final else None
 
     def read_episode(self, episode: int) -> TensorDict:
         actions = self._read(episode, "actions")
@@ -136,7 +163,7 @@ class ManiSkillFile(EpisodeFile):
                 f"{tuple(actions.shape)}"
             )
         check_finite(actions, self.path, episode, f"traj_{episode}/actions")
-        observation = self._observation(episode, steps)
+        observation, final = self._observation(episode, steps)
         group = self.h5[f"traj_{episode}"]
         flags = {}
         for name in ("success", "fail", "terminated"):
@@ -158,6 +185,7 @@ class ManiSkillFile(EpisodeFile):
             actions,
             reward=reward if reward is not None else sparse,
             terminated=bool(flags["terminated"][-1]) if "terminated" in flags else False,
+            final_observation=final,
             next_extra=extra,
         )
 

@@ -2,7 +2,8 @@
 
 Low-dimensional ``obs`` entries are concatenated into ``"state"`` (in ``state_keys`` order, default:
 every non-image key in the file's order, which h5py gives alphabetically); one camera (``*_image``
-key) becomes ``"rgb"``.
+key) becomes ``"rgb"``. The last row of ``next_obs`` (when the file has it) is the final observation;
+the controller config in ``env_args`` tells delta from absolute control.
 """
 
 from __future__ import annotations
@@ -76,7 +77,35 @@ class RobomimicFile(EpisodeFile):
 
     @property
     def metadata(self) -> dict:
-        return {**super().metadata, "env_id": self.env_args.get("env_name"), "control_mode": None}
+        return {
+            **super().metadata,
+            "env_id": self.env_args.get("env_name"),
+            "control_mode": None,
+            "control": _control(self.env_args),
+            "has_rewards": True,  # read_episode requires them
+            "has_final_observation": all(self._has_next_obs(e) for e in self.demos),
+        }
+
+    def _has_next_obs(self, episode: int) -> bool:
+        group = self._group(episode)
+        keys = [*self.state_keys, *([self.image_key] if self.image_key else [])]
+        return "next_obs" in group and all(k in group["next_obs"] for k in keys)
+
+    def _final_observation(self, episode: int, steps: int, name: str):
+        """The last ``next_obs`` row, shaped like one observation; None when the file has none."""
+        if not self._has_next_obs(episode):
+            return None
+        columns = []
+        for key in self.state_keys:
+            value = self._read(episode, f"next_obs/{key}")
+            value = check_steps(value, steps, self.path, name, f"next_obs/{key}")[-1:]
+            columns.append(check_finite(value.float().reshape(1, -1), self.path, name, f"next_obs/{key}"))
+        state = torch.cat(columns, dim=-1)[0] if columns else torch.zeros(0)
+        if self.image_key is None:
+            return state
+        key = f"next_obs/{self.image_key}"
+        rgb = check_steps(self._read(episode, key), steps, self.path, name, key)[-1:]
+        return {"state": state, "rgb": to_uint8_image(rgb, self.path, name, key, channels_last=True)[0]}
 
     def _group(self, episode: int):
         return self.h5["data"][self.demos[episode]]
@@ -129,7 +158,28 @@ class RobomimicFile(EpisodeFile):
             "rewards",
         )
         dones = check_steps(self._read(episode, "dones"), steps, self.path, name, "dones")
-        return assemble_episode(episode, observation, actions, reward=reward, terminated=bool(dones[-1]))
+        return assemble_episode(
+            episode,
+            observation,
+            actions,
+            reward=reward,
+            terminated=bool(dones[-1]),
+            final_observation=self._final_observation(episode, steps, name),
+        )
 
     def close(self) -> None:
         self.h5.close()
+
+
+def _control(env_args: dict) -> str | None:
+    """delta/absolute from robosuite's controller config (``control_delta`` up to robosuite 1.4, the
+    arm parts' ``input_type`` from 1.5); None when the file does not say."""
+    config = (env_args.get("env_kwargs") or {}).get("controller_configs") or {}
+    if "control_delta" in config:
+        return "delta" if config["control_delta"] else "absolute"
+    kinds = {
+        part.get("input_type")
+        for part in (config.get("body_parts") or {}).values()
+        if isinstance(part, dict) and part.get("input_type") in ("delta", "absolute")
+    }
+    return kinds.pop() if len(kinds) == 1 else None
