@@ -1,24 +1,44 @@
-"""``l1flow-rl``: one entry point, one sub-command per job, hydra overrides for everything else.
+"""``l1flow-rl``: one entry point, one hydra application per sub-command.
 
-l1flow-rl train task=maniskill_pushcube policy=l1flow train.steps=3000
-l1flow-rl train --cfg job          # print the composed config and exit
+    l1flow-rl train task=maniskill_pushcube policy=l1flow train.steps=3000
+    l1flow-rl train -m seed=0,1,2 policy=l1flow,ddpm     # a sweep: 6 runs, one after another
+    l1flow-rl train --cfg job                            # print the composed config and exit
+    l1flow-rl train --help                               # config groups, their options, the choices
+
+Every run gets its own directory (``run_dir``; by default ``hydra.run.dir`` of ``configs/config.yaml``,
+``runs/<task>_<policy>/<date>_<time>``) holding hydra's record of it (``.hydra/config.yaml``,
+``overrides.yaml``, ``hydra.yaml``) and the command's log. A sweep (``-m``) runs its jobs in
+``hydra.sweep.dir`` (``runs/multirun/<date>_<time>``, or ``run_dir`` when given), one
+``<num>_<task>_<policy>_seed<seed>`` folder per job. Before any work, every job's config is composed and
+validated (:mod:`l1flow_rl.config.validate`); a bad key or value exits with code 2, naming it.
+
+The commands run through hydra's own ``Hydra`` object, as ``@hydra.main`` does, but without its
+error reporter, which turns every exception into exit code 1: here exceptions keep their type and
+a command's return value is the exit code.
 """
 
 from __future__ import annotations
 
 import importlib
+import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
 
-from hydra import compose, initialize_config_dir
 from hydra.core.config_store import ConfigStore
+from hydra.core.global_hydra import GlobalHydra
+from hydra.core.hydra_config import HydraConfig
 from hydra.errors import HydraException
-from omegaconf import DictConfig, OmegaConf
+from hydra.types import RunMode
+from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from l1flow_rl.config import CONFIG_DIR, AppConfig
+from l1flow_rl.config.overrides import open_dict_overrides
+from l1flow_rl.config.validate import ConfigValidationError, validate_config
 
-__all__ = ["COMMANDS", "compose_config", "main"]
+__all__ = ["COMMANDS", "RUN_DIRS", "compose_config", "main"]
 
 #: sub-command -> (module, function taking the composed DictConfig, one-line help)
 COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -36,71 +56,248 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "toy": ("l1flow_rl.toy", "run_toy", "the multi-modality demonstration (paper Fig. 2): toy.png, toy.json"),
 }
 
-_stored = False
+_STAMP = "${now:%Y-%m-%d_%H-%M-%S}"
+#: where the sub-commands that do not train a task's policy put their runs: BASE/<date>_<time>, and a
+#: sweep's jobs in BASE/multirun_<date>_<time>/<num>; the others use configs/config.yaml's hydra block
+RUN_DIRS: dict[str, str] = {"eval": "runs/eval", "demos": "runs/demos", "toy": "runs/toy"}
+
+_CONFIG_NAME = "config"
+_INVALID = (HydraException, OmegaConfBaseException, ValueError)
 
 
 def _store_schema() -> None:
-    global _stored
-    if not _stored:
-        ConfigStore.instance().store(name="base_config", node=AppConfig)
-        _stored = True
+    ConfigStore.instance().store(name="base_config", node=AppConfig)
 
 
-def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
-    """Compose ``configs/config.yaml`` with hydra overrides, validated against :class:`AppConfig`."""
+def _create_hydra(command: str, config_dir: str | None = None) -> Any:
+    """hydra's application object for ``command``, searching ``configs/`` (and ``config_dir``)."""
+    from hydra._internal.hydra import Hydra
+    from hydra._internal.utils import create_config_search_path
+
     _store_schema()
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=list(overrides))
+    search_path = create_config_search_path(str(CONFIG_DIR))
+    if config_dir is not None:
+        if not Path(config_dir).is_dir():
+            raise ValueError(f"--config-dir {config_dir!r} is not a directory")
+        search_path.prepend(provider="command-line", path=f"file://{os.path.abspath(config_dir)}")
+    GlobalHydra.instance().clear()
+    return Hydra.create_main_hydra2(task_name=command, config_search_path=search_path)
+
+
+def _compose(hydra: Any, overrides: Sequence[str]) -> DictConfig:
+    """The full config (with hydra's node) of one run of ``overrides``."""
+    return hydra.compose_config(
+        config_name=_CONFIG_NAME,
+        overrides=list(overrides),
+        run_mode=RunMode.RUN,
+        with_log_configuration=False,
+    )
+
+
+def _app_config(full: DictConfig) -> DictConfig:
+    """The composed config without hydra's node; ``run_dir`` defaults to ``hydra.run.dir``."""
+    cfg = full.copy()
+    with open_dict(cfg):
+        if cfg.get("run_dir") is None and "hydra" in cfg:
+            cfg.run_dir = str(cfg.hydra.run.dir)
+        cfg.pop("hydra", None)
     OmegaConf.resolve(cfg)
     return cfg
 
 
-def _usage() -> str:
-    lines = ["usage: l1flow-rl COMMAND [key=value ...] [--cfg job]", "", "commands:"]
+def _run_dir_overrides(command: str, overrides: Sequence[str], multirun: bool) -> list[str]:
+    """hydra overrides that put the run where ``run_dir`` says, or in the command's default place."""
+    key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
+    given = [o.split("=", 1)[1] for o in overrides if o.lstrip("+").startswith("run_dir=")]
+    if any(o.startswith(f"{key}=") for o in overrides):
+        return []
+    extra = []
+    if given and given[-1] not in ("null", "None", ""):
+        extra.append(f"{key}={given[-1]}")
+    elif command in RUN_DIRS:
+        extra.append(f"{key}={RUN_DIRS[command]}/{'multirun_' if multirun else ''}{_STAMP}")
+    if multirun and command in RUN_DIRS:
+        extra.append("hydra.sweep.subdir=${hydra.job.num}")
+    return extra
+
+
+def compose_config(
+    overrides: Sequence[str] = (), command: str = "train", config_dir: str | None = None
+) -> DictConfig:
+    """The config ``l1flow-rl COMMAND OVERRIDES`` would run with, validated for ``command``.
+
+    Raises hydra's or OmegaConf's error for a bad key or type, and
+    :class:`~l1flow_rl.config.validate.ConfigValidationError` for values that cannot work.
+    ``run_dir`` is filled with the run directory the command would use.
+    """
+    overrides = [*open_dict_overrides(overrides), *_run_dir_overrides(command, overrides, multirun=False)]
+    hydra = _create_hydra(command, config_dir)
+    try:
+        full = _compose(hydra, overrides)
+    finally:
+        GlobalHydra.instance().clear()
+    cfg = _app_config(full)
+    validate_config(cfg, command)
+    return cfg
+
+
+def _sweep_jobs(overrides: Sequence[str]) -> list[list[str]]:
+    """The override list of every job of a sweep, as hydra's basic sweeper expands it."""
+    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    return [job for batch in BasicSweeper.split_arguments(parsed, None) for job in batch]
+
+
+def _job(command: str, func: Callable[[DictConfig], Any]) -> Callable[[DictConfig], int]:
+    """The task function hydra runs: ``run_dir`` becomes the job's output directory."""
+
+    def task(cfg: DictConfig) -> int:
+        out = Path(HydraConfig.get().runtime.output_dir)
+        try:
+            shown = str(out.relative_to(Path.cwd()))
+        except ValueError:
+            shown = str(out)
+        with open_dict(cfg):
+            cfg.run_dir = shown
+        OmegaConf.resolve(cfg)
+        return int(func(cfg) or 0)
+
+    task.__name__ = task.__qualname__ = f"l1flow_rl_{command}"
+    return task
+
+
+def _groups_help(hydra: Any, overrides: Sequence[str]) -> list[str]:
+    """One line per config group: its options, and the one this command line picks."""
+    cfg = _compose(hydra, overrides)
+    choices = cfg.hydra.runtime.choices
+    lines = []
+    for group in sorted(g for g in hydra.list_all_config_groups() if not g.startswith("hydra")):
+        options = sorted(hydra.config_loader.get_group_options(group))
+        lines.append(f"  {group:<8} {', '.join(options)}   (now: {choices.get(group)})")
+    return lines
+
+
+def _usage(command: str | None = None, hydra: Any = None, overrides: Sequence[str] = ()) -> str:
+    head = f"l1flow-rl {command}: {COMMANDS[command][2]}\n\n" if command else ""
+    lines = [
+        f"{head}usage: l1flow-rl COMMAND [key=value ...] [-m] [--cfg job|hydra|all [--resolve]] [--help]",
+        "",
+        "commands:",
+    ]
     lines += [f"  {name:<8} {help_}" for name, (_, _, help_) in COMMANDS.items()]
     lines += [
         "",
         "Overrides use hydra syntax, e.g. task=maniskill_pickcube policy=ddim train.steps=500 run_dir=runs/x",
-        f"Config groups: task, policy (files under {CONFIG_DIR}).",
+        "  -m / --multirun   a sweep, one run per combination: -m seed=0,1,2 policy=l1flow,ddpm",
+        "  --cfg job         print the composed config and exit",
+        "  --config-dir DIR  also search DIR for configs (your own task/*.yaml, policy/*.yaml, ...)",
+        "",
+        f"config groups (files under {CONFIG_DIR}; pick one with group=option):",
+    ]
+    if hydra is not None:
+        lines += _groups_help(hydra, overrides)
+    lines += [
+        "",
+        "Runs land in runs/<task>_<policy>/<date>_<time>/ (or run_dir=DIR), with hydra's record in .hydra/;",
+        "a sweep's jobs in runs/multirun/<date>_<time>/<num>_<task>_<policy>_seed<seed>/.",
     ]
     return "\n".join(lines)
 
 
+def _invalid(command: str, err: Exception) -> int:
+    cause = (
+        f"\n  cause: {err.__cause__}" if err.__cause__ and not isinstance(err, ConfigValidationError) else ""
+    )
+    print(f"l1flow-rl {command}: invalid config: {err}{cause}", file=sys.stderr)
+    return 2
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``l1flow-rl COMMAND ...``; returns the exit code (2: bad command line or config)."""
+    from hydra._internal.utils import get_args_parser
+
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help", "help"):
-        print(_usage())
+        hydra = _create_hydra("help")
+        try:
+            print(_usage(hydra=hydra))
+        finally:
+            GlobalHydra.instance().clear()
         return 0
     command, rest = args[0], args[1:]
     if command not in COMMANDS:
         print(f"l1flow-rl: unknown command {command!r}\n\n{_usage()}", file=sys.stderr)
         return 2
-    if any(a in ("-h", "--help") for a in rest):
-        print(f"l1flow-rl {command}: {COMMANDS[command][2]}\n\n{_usage()}")
-        return 0
-    print_cfg = False
-    overrides = []
-    i = 0
-    while i < len(rest):
-        if rest[i] in ("--cfg=job", "-c=job") or (
-            rest[i] in ("--cfg", "-c") and rest[i + 1 : i + 2] == ["job"]
-        ):
-            print_cfg = True
-            i += 1 if "=" in rest[i] else 2
-            continue
-        overrides.append(rest[i])
-        i += 1
+    parser = get_args_parser()
+    parser.prog = f"l1flow-rl {command}"
     try:
-        cfg = compose_config(overrides)
-    except (HydraException, OmegaConfBaseException, ValueError) as err:
-        cause = f"\n  cause: {err.__cause__}" if err.__cause__ else ""
-        print(f"l1flow-rl {command}: invalid config: {err}{cause}", file=sys.stderr)
+        hargs = parser.parse_args(rest)
+    except SystemExit as exit_:  # argparse has printed what is wrong
+        return int(exit_.code or 0)
+    unsupported = [
+        flag
+        for flag, on in (
+            ("--config-name", hargs.config_name),
+            ("--config-path", hargs.config_path),
+            ("--experimental-rerun", hargs.experimental_rerun),
+            ("--shell-completion", hargs.shell_completion),
+        )
+        if on
+    ]
+    if unsupported:
+        print(f"l1flow-rl {command}: {', '.join(unsupported)} is not supported here", file=sys.stderr)
         return 2
-    if print_cfg:
-        print(OmegaConf.to_yaml(cfg))
+    # policy.sampler_kwargs.steps=16 may add a key the policy file lacks (l1flow_rl.config.overrides)
+    overrides = open_dict_overrides(hargs.overrides)
+    try:
+        hydra = _create_hydra(command, hargs.config_dir)
+    except _INVALID as err:
+        return _invalid(command, err)
+    try:
+        if hargs.help or hargs.hydra_help:
+            if hargs.hydra_help:
+                hydra.hydra_help(config_name=_CONFIG_NAME, args_parser=parser, args=hargs)
+            else:
+                print(_usage(command, hydra, overrides))
+            return 0
+        return _run(command, hydra, hargs, overrides)
+    finally:
+        GlobalHydra.instance().clear()
+
+
+def _run(command: str, hydra: Any, hargs: Any, overrides: list[str]) -> int:
+    multirun = bool(hargs.multirun)
+    overrides = [*overrides, *_run_dir_overrides(command, overrides, multirun)]
+    # Compose and validate every job before the first one starts.
+    try:
+        for job in _sweep_jobs(overrides) if multirun else [overrides]:
+            full = _compose(hydra, job)
+            validate_config(_app_config(full), command)
+    except _INVALID as err:
+        return _invalid(command, err)
+    if hargs.cfg or hargs.info:
+        if hargs.info:
+            hydra.show_info(hargs.info, config_name=_CONFIG_NAME, overrides=overrides)
+        else:
+            hydra.show_cfg(
+                config_name=_CONFIG_NAME,
+                overrides=overrides,
+                cfg_type=hargs.cfg,
+                package=hargs.package,
+                resolve=hargs.resolve,
+            )
         return 0
     module, func, _ = COMMANDS[command]
-    return int(getattr(importlib.import_module(module), func)(cfg) or 0)
+    task = _job(command, getattr(importlib.import_module(module), func))
+    if not multirun:
+        return int(hydra.run(config_name=_CONFIG_NAME, task_function=task, overrides=overrides).return_value)
+    batches = hydra.multirun(
+        config_name=_CONFIG_NAME, task_function=task, overrides=[*overrides, "hydra.mode=MULTIRUN"]
+    )
+    codes = [int(r.return_value) for batch in batches for r in batch]
+    return max(codes, default=0)
 
 
 if __name__ == "__main__":

@@ -28,7 +28,8 @@ class AppConfig:
     eval: EvalConfig = field(default_factory=EvalConfig)
     toy: ToyConfig = field(default_factory=ToyConfig)
     data_dir: str = "data"
-    run_dir: str = "runs/default"
+    # None: the run's own directory (hydra.run.dir, unique per run; see l1flow_rl.cli)
+    run_dir: str | None = None
     checkpoint: str | None = None
     resume: bool = False
     seed: int = 0

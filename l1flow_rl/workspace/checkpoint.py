@@ -6,6 +6,7 @@ composed config, data shapes and RNG states. Nothing in it needs arbitrary unpic
 
 from __future__ import annotations
 
+import fnmatch
 import os
 import random
 import tempfile
@@ -20,8 +21,11 @@ from omegaconf import DictConfig, OmegaConf
 from l1flow_rl.actor import L1FlowActor
 
 __all__ = [
+    "RESUME_MAY_CHANGE",
     "CheckpointMismatchError",
+    "ResumeMismatchError",
     "check_compatible",
+    "check_resumable",
     "get_rng_state",
     "load_actor",
     "load_checkpoint",
@@ -45,8 +49,36 @@ _IDENTITY_FIELDS = (
 )
 
 
+#: Config fields a resumed run may set differently from the run it continues (dotted, ``*`` matches
+#: any rest): evaluation, logging and checkpoint cadence, where things run, and the evaluation-only
+#: env options. Every other field (the task and its data: ``task.*``, ``demos.*``, ``data.*``,
+#: ``seed``; the schedule: ``train.steps``, ``batch_size``, ``lr``, ...; the method and network:
+#: ``policy.*``) must match, or the resumed run would not be the run it claims to continue.
+RESUME_MAY_CHANGE: tuple[str, ...] = (
+    "eval.*",
+    "train.log_every",
+    "train.checkpoint_every",
+    "train.eval_every",
+    "train.logger",
+    "train.prefetch",  # sampling threads: speed only (resume is bit-exact only with 0)
+    "train.compile",  # the same network, compiled or not
+    "task.max_episode_steps",  # the evaluation horizon; the demonstrations are already made
+    "task.env.*",  # simulator options of the evaluation env
+    "device",
+    "data_dir",  # where the demonstrations cache lives, not which demonstrations
+    "run_dir",
+    "resume",
+    "checkpoint",
+    "toy.*",
+)
+
+
 class CheckpointMismatchError(ValueError):
     """The checkpoint was made for another task or network than the one asked for."""
+
+
+class ResumeMismatchError(CheckpointMismatchError):
+    """``resume=true`` with a config that changes the data, the schedule or the method."""
 
 
 def save_checkpoint(path: str | Path, state: Mapping[str, Any]) -> Path:
@@ -113,6 +145,49 @@ def check_compatible(
     if diffs:
         raise CheckpointMismatchError(
             f"checkpoint {path!r} does not fit this config:\n  " + "\n  ".join(diffs)
+        )
+
+
+def _flatten(node: Any, prefix: str = "") -> dict[str, Any]:
+    """Dotted leaf paths of a nested mapping; lists are leaves; an empty mapping is a leaf."""
+    if isinstance(node, Mapping) and node:
+        out: dict[str, Any] = {}
+        for key, value in node.items():
+            out.update(_flatten(value, f"{prefix}{key}."))
+        return out
+    return {prefix[:-1]: node}
+
+
+def check_resumable(
+    saved_cfg: Mapping[str, Any], cfg: DictConfig | Mapping[str, Any], path: str = ""
+) -> None:
+    """Raise :class:`ResumeMismatchError` naming every field that differs from the checkpoint's
+    config, except those in :data:`RESUME_MAY_CHANGE`. A field the checkpoint does not record
+    (it predates the field) is not compared.
+
+    Example:
+        >>> saved = {"train": {"steps": 100, "log_every": 10}, "demos": {"num": 5}}
+        >>> check_resumable(saved, {"train": {"steps": 100, "log_every": 50}, "demos": {"num": 5}})
+        >>> try:
+        ...     check_resumable(saved, {"train": {"steps": 200, "log_every": 10}, "demos": {"num": 5}})
+        ... except ResumeMismatchError as err:
+        ...     print(str(err).splitlines()[1])
+          train.steps: checkpoint has 100, config asks for 200
+    """
+    current = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+    old, new = _flatten(saved_cfg), _flatten(current)
+    diffs = [
+        f"{key}: checkpoint has {old[key]!r}, config asks for {new.get(key)!r}"
+        for key in old
+        if old[key] != new.get(key) and not any(fnmatch.fnmatchcase(key, p) for p in RESUME_MAY_CHANGE)
+    ]
+    if diffs:
+        raise ResumeMismatchError(
+            f"resume=true: checkpoint {path!r} was trained with another config:\n  "
+            + "\n  ".join(diffs)
+            + "\nOn resume only these may change: "
+            + ", ".join(RESUME_MAY_CHANGE)
+            + ". To change the others, start a new run (drop resume=true)."
         )
 
 
