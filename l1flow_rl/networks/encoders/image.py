@@ -65,6 +65,12 @@ class CameraEncoder(nn.Module):
         super().__init__()
         self.trunk = ResNet18GN(num_classes=None, group_size=group_size, in_channels=in_channels)
         h, w = (_trunk_map_size(s) for s in crop)
+        if h * w < 2:
+            # a softmax over one position is constant: the features would ignore the image
+            raise ValueError(
+                f"a {crop[0]}x{crop[1]} crop leaves a 1x1 ResNet-18 feature map, on which the spatial "
+                "softmax cannot see the image; crops need a side of at least 33 pixels"
+            )
         self.pool = SpatialSoftmax(ResNet18GN.out_channels, h, w, num_keypoints=num_keypoints)
         self.proj = nn.Linear(self.pool.output_dim, feature_dim)
         self.feature_dim = feature_dim
@@ -95,8 +101,8 @@ class ImageObservationEncoder(ObservationEncoder):
     Example:
         >>> import torch
         >>> from tensordict import TensorDict
-        >>> enc = ImageObservationEncoder({"rgb": (3, 32, 32), "state": (5,)}, crop_ratio=0.875)
-        >>> obs = TensorDict({"rgb": torch.zeros(2, 2, 3, 32, 32, dtype=torch.uint8),
+        >>> enc = ImageObservationEncoder({"rgb": (3, 64, 64), "state": (5,)}, crop_ratio=0.875)
+        >>> obs = TensorDict({"rgb": torch.zeros(2, 2, 3, 64, 64, dtype=torch.uint8),
         ...                   "state": torch.zeros(2, 2, 5)}, [2, 2])
         >>> enc(obs).shape  # 64 image features + 5 state dims per step
         torch.Size([2, 2, 69])
