@@ -33,6 +33,7 @@ __all__ = [
     "init_distributed",
     "raise_if_any_failed",
     "resolve_device",
+    "run_on_every_rank",
     "run_on_rank0",
 ]
 
@@ -131,3 +132,20 @@ def raise_if_any_failed(error: BaseException | None, what: str) -> None:
             raise RankFailedError(
                 f"rank {rank} failed while {what}: {message}\n\nrank {rank}'s traceback:\n{remote_traceback}"
             )
+
+
+def run_on_every_rank(work: Callable[[], T], what: str) -> T:
+    """Run ``work`` on every rank; if it fails on any, every rank raises (see
+    :func:`raise_if_any_failed`) before the next collective could strand the others.
+
+    Example:
+        >>> run_on_every_rank(lambda: "ready", "loading")
+        'ready'
+    """
+    try:
+        result = work()
+    except Exception as err:
+        raise_if_any_failed(err, what)
+        raise  # unreachable: raise_if_any_failed re-raises err
+    raise_if_any_failed(None, what)
+    return result

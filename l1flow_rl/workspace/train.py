@@ -1,11 +1,13 @@
 """``l1flow-rl train``: demonstrations -> chunk replay buffer -> loss -> AdamW/cosine/EMA -> evaluation.
 
 A plain TorchRL loop. Rank 0 owns demonstrations, evaluation, checkpoints and logs; under
-``torchrun`` every rank trains on its own sample stream and DDP keeps the replicas in sync.
+``torchrun`` every rank trains on its own sample stream and DDP keeps the replicas in sync, and a
+failure on one rank ends every rank with its error (:mod:`l1flow_rl.workspace.distributed`).
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import random
@@ -15,20 +17,24 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.distributed as dist
 from omegaconf import DictConfig, OmegaConf
 
 from l1flow_rl.evaluation.evaluator import sampler_record
 from l1flow_rl.workspace.build import build_actor, build_loss
 from l1flow_rl.workspace.checkpoint import (
-    check_compatible,
+    check_resumable,
     get_rng_state,
     load_actor,
     load_checkpoint,
     save_checkpoint,
     set_rng_state,
 )
-from l1flow_rl.workspace.distributed import init_distributed, resolve_device
+from l1flow_rl.workspace.distributed import (
+    init_distributed,
+    resolve_device,
+    run_on_every_rank,
+    run_on_rank0,
+)
 from l1flow_rl.workspace.evaluator import PeriodicEvaluator
 from l1flow_rl.workspace.logging import make_logger
 from l1flow_rl.workspace.report import format_summary, save_history, save_plots
@@ -50,51 +56,87 @@ def _obs_shapes(episodes) -> dict[str, tuple[int, ...]]:
     return {k: tuple(v.shape[1:]) for k, v in obs.items()}
 
 
-def run_train(cfg: DictConfig) -> int:
-    from l1flow_rl.data import fit_normalizers
-    from l1flow_rl.workspace.dataset import load_task_episodes, make_train_buffer, resolve_dataset
-
-    rank, world = init_distributed()
+def _device(cfg: DictConfig, world: int) -> torch.device:
     device = resolve_device(cfg.device)
     if device.type == "cuda" and world > 1:
         device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
         torch.cuda.set_device(device)
+    return device
+
+
+def _resume_state(cfg: DictConfig, latest: Path) -> dict[str, Any] | None:
+    """The checkpoint to continue (``resume=true``), refused if the config changes what it trained."""
+    if not cfg.resume:
+        return None
+    if not latest.is_file():
+        raise FileNotFoundError(
+            f"resume=true but {str(latest)!r} does not exist; pass the run's directory as run_dir=... "
+            "(every run gets a new directory by default), or drop resume=true to start fresh"
+        )
+    state = load_checkpoint(latest)
+    check_resumable(state["config"], cfg, str(latest))
+    return state
+
+
+def _rank0_due(cfg: DictConfig, step: int) -> bool:
+    """Whether rank 0 logs, evaluates or checkpoints after ``step`` (every rank computes the same)."""
+    t = cfg.train
+    evaluates = cfg.eval.episodes > 0 and t.eval_every and step % t.eval_every == 0
+    return bool(step % t.log_every == 0 or step % t.checkpoint_every == 0 or step == t.steps or evaluates)
+
+
+def run_train(cfg: DictConfig) -> int:
+    """Train ``cfg.policy`` on ``cfg.task``'s demonstrations; rank 0 evaluates and reports.
+
+    Under torchrun, rank-0-only work (demonstrations, evaluation, checkpoints, the report) runs
+    through :func:`run_on_rank0`, so its failure ends every rank with its error and its length
+    never trips the process group's timeout.
+    """
+    from l1flow_rl.data import fit_normalizers
+    from l1flow_rl.workspace.dataset import load_task_episodes, make_train_buffer, resolve_dataset
+
+    rank, world = init_distributed()
+    is_main = rank == 0
+    device = _device(cfg, world)
     _seed_everything(cfg.seed + rank)
     run_dir, tcfg = Path(cfg.run_dir), cfg.train
     ckpt_dir = run_dir / "checkpoints"
     latest = ckpt_dir / "latest.pt"
-    resume_state = None
-    if cfg.resume:
-        if not latest.is_file():
-            raise FileNotFoundError(
-                f"resume=true but {str(latest)!r} does not exist; drop resume=true to start fresh"
-            )
-        resume_state = load_checkpoint(latest)
-        check_compatible(resume_state["config"], cfg, str(latest))
-    elif latest.is_file() and rank == 0:
-        raise FileExistsError(
-            f"{str(run_dir)!r} already holds a run ({latest}); pass resume=true to continue it "
-            "or choose another run_dir"
-        )
+    resume_state = run_on_every_rank(lambda: _resume_state(cfg, latest), "reading the checkpoint to resume")
+    rank0: dict[str, Any] = {"evaluator": None, "logger": None}  # objects that live on rank 0 only
 
-    # Resolved before any demonstration is made: a bad protocol or overlapping seeds fail first.
-    evaluator = PeriodicEvaluator(cfg, device) if rank == 0 and cfg.eval.episodes > 0 else None
+    def preflight() -> None:
+        if resume_state is None and latest.is_file():
+            raise FileExistsError(
+                f"{str(run_dir)!r} already holds a run ({latest}); pass resume=true to continue it "
+                "or choose another run_dir"
+            )
+        # Resolved before any demonstration is made: a bad protocol or overlapping seeds fail first.
+        if cfg.eval.episodes > 0:
+            rank0["evaluator"] = PeriodicEvaluator(cfg, device)
+
+    run_on_rank0(preflight, "checking the run directory and the evaluation protocol")
 
     # -- data --------------------------------------------------------------------------------
     t_start = time.perf_counter()
-    dataset = resolve_dataset(cfg, rank, world)
+    dataset = run_on_rank0(lambda: resolve_dataset(cfg), "making or finding the demonstrations")
     demo_seconds = time.perf_counter() - t_start
-    episodes = load_task_episodes(cfg, dataset)
     pcfg = cfg.policy
-    buffer = make_train_buffer(cfg, episodes, seed=cfg.seed + rank)
+
+    def setup() -> tuple[Any, ...]:
+        episodes = load_task_episodes(cfg, dataset)
+        buffer = make_train_buffer(cfg, episodes, seed=cfg.seed + rank)
+        action_dim = int(episodes["action"].shape[-1])
+        obs_shapes = _obs_shapes(episodes)
+        actor = build_actor(pcfg, obs_shapes, action_dim, cfg.get("encoder"))
+        fit_normalizers(actor.policy, episodes, mode=pcfg.normalizer, obs_mode=pcfg.obs_normalizer)
+        actor.to(device)
+        return buffer, action_dim, obs_shapes, actor, build_loss(actor, pcfg)
 
     # -- model -------------------------------------------------------------------------------
-    action_dim = int(episodes["action"].shape[-1])
-    obs_shapes = _obs_shapes(episodes)
-    actor = build_actor(pcfg, obs_shapes, action_dim, cfg.get("encoder"))
-    fit_normalizers(actor.policy, episodes, mode=pcfg.normalizer, obs_mode=pcfg.obs_normalizer)
-    actor.to(device)
-    loss_fn = build_loss(actor, pcfg)
+    buffer, action_dim, obs_shapes, actor, loss_fn = run_on_every_rank(
+        setup, "loading the demonstrations and building the model"
+    )
     trainer = Trainer(
         actor,
         loss_fn,
@@ -119,12 +161,10 @@ def run_train(cfg: DictConfig) -> int:
         history, evals, best = resume_state["history"], resume_state["evals"], resume_state["best"]
         logger_state = resume_state.get("logger")
 
-    is_main = rank == 0
-    logger = None
-    if is_main:
+    def open_logger() -> None:
         run_dir.mkdir(parents=True, exist_ok=True)
         OmegaConf.save(cfg, run_dir / "config.yaml")
-        logger = make_logger(
+        rank0["logger"] = make_logger(
             tcfg.logger,
             run_dir,
             logger_state,
@@ -133,8 +173,11 @@ def run_train(cfg: DictConfig) -> int:
             run_name=tcfg.run_name,
             config=OmegaConf.to_container(cfg, resolve=True),
         )
-        if evaluator is not None:
-            evaluator.logger = logger  # every metric of every evaluation, and its videos
+        if rank0["evaluator"] is not None:
+            rank0["evaluator"].logger = rank0["logger"]  # every metric of every evaluation, and its videos
+
+    run_on_rank0(open_logger, "opening the run directory and the logger")
+    evaluator, logger = rank0["evaluator"], rank0["logger"]
 
     def checkpoint_state() -> dict[str, Any]:
         state = trainer.state_dict()
@@ -158,90 +201,90 @@ def run_train(cfg: DictConfig) -> int:
     t_train = time.perf_counter()
     first_step = trainer.step
     bar = tqdm(total=tcfg.steps, initial=first_step, disable=not is_main, desc="train", dynamic_ncols=True)
+
+    def after_step(step: int, metrics: dict[str, float]) -> None:
+        nonlocal best
+        if step % tcfg.log_every == 0 or step == tcfg.steps:
+            rate = (step - first_step) / max(time.perf_counter() - t_train, 1e-9)
+            bar.set_postfix(loss=f"{metrics['loss']:.4f}", lr=f"{metrics['lr']:.2e}", it_s=f"{rate:.1f}")
+            history["step"].append(step)
+            history["loss"].append(metrics["loss"])
+            history["lr"].append(metrics["lr"])
+            for k, v in metrics.items():
+                logger.log_scalar(f"train/{k}", v, step=step)
+        if evaluator is not None and tcfg.eval_every and step % tcfg.eval_every == 0 and step < tcfg.steps:
+            result = evaluator(trainer.ema_actor, step, split="val")
+            evals.append(evaluator.history_row(result))
+            value = result[evaluator.headline]
+            bar.write(
+                f"step {step}: validation {evaluator.headline}={value:.3f} over {result['episodes']} episodes"
+            )
+            if value > best:
+                best = value
+                save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())
+        if step % tcfg.checkpoint_every == 0 or step == tcfg.steps:
+            save_checkpoint(latest, checkpoint_state())
+
     try:
         while trainer.step < tcfg.steps:
             batch = buffer.sample().to(device)
             metrics = trainer.train_step(batch)
             step = trainer.step
             bar.update(1)
-            if is_main and (step % tcfg.log_every == 0 or step == tcfg.steps):
-                rate = (step - first_step) / max(time.perf_counter() - t_train, 1e-9)
-                bar.set_postfix(loss=f"{metrics['loss']:.4f}", lr=f"{metrics['lr']:.2e}", it_s=f"{rate:.1f}")
-                history["step"].append(step)
-                history["loss"].append(metrics["loss"])
-                history["lr"].append(metrics["lr"])
-                for k, v in metrics.items():
-                    logger.log_scalar(f"train/{k}", v, step=step)
-            if not is_main:
-                continue
-            if (
-                evaluator is not None
-                and tcfg.eval_every
-                and step % tcfg.eval_every == 0
-                and step < tcfg.steps
-            ):
-                result = evaluator(trainer.ema_actor, step, split="val")
-                evals.append(evaluator.history_row(result))
-                value = result[evaluator.headline]
-                bar.write(
-                    f"step {step}: validation {evaluator.headline}={value:.3f} "
-                    f"over {result['episodes']} episodes"
+            if _rank0_due(cfg, step):
+                run_on_rank0(
+                    functools.partial(after_step, step, metrics),
+                    f"logging/evaluating/checkpointing at step {step}",
                 )
-                if value > best:
-                    best = value
-                    save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())
-            if step % tcfg.checkpoint_every == 0 or step == tcfg.steps:
-                save_checkpoint(latest, checkpoint_state())
     finally:
         bar.close()
     train_seconds = time.perf_counter() - t_train
 
-    if not is_main:
-        dist.barrier()
-        return 0
     # -- final evaluation and report ------------------------------------------------------
-    summary: dict[str, Any] = {
-        "task": cfg.task.name,
-        "policy": cfg.policy.name,
-        "steps": trainer.step,
-        "demos": cfg.demos.num,
-        "demo_seconds": round(demo_seconds, 1),
-        "train_seconds": round(train_seconds, 1),
-    }
-    if evaluator is not None:
-        if evals:  # validation ran during training: the final model competes on the same seeds
-            val = evaluator(trainer.ema_actor, trainer.step, split="val")
-            evals.append(evaluator.history_row(val))
-            if val[evaluator.headline] > best:
-                best = val[evaluator.headline]
+    def report() -> None:
+        nonlocal best
+        summary: dict[str, Any] = {
+            "task": cfg.task.name,
+            "policy": cfg.policy.name,
+            "steps": trainer.step,
+            "demos": cfg.demos.num,
+            "demo_seconds": round(demo_seconds, 1),
+            "train_seconds": round(train_seconds, 1),
+        }
+        if evaluator is not None:
+            if evals:  # validation ran during training: the final model competes on the same seeds
+                val = evaluator(trainer.ema_actor, trainer.step, split="val")
+                evals.append(evaluator.history_row(val))
+                if val[evaluator.headline] > best:
+                    best = val[evaluator.headline]
+                    save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())
+            else:  # the final model is the only candidate
                 save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())
-        else:  # the final model is the only candidate
-            save_checkpoint(ckpt_dir / "best.pt", checkpoint_state())
-        save_checkpoint(latest, checkpoint_state())
-        # The reported figures: the chosen model on the test seeds, which chose nothing.
-        selection = evaluator.selection(evals, trainer.step)
-        chosen = trainer.ema_actor
-        if selection["step"] != trainer.step:
-            chosen = load_actor(ckpt_dir / "best.pt", use_ema=True, map_location=device)[0]
-        result = evaluator(chosen, trainer.step, video_dir=run_dir / "videos", split="test")
-        evaluator.close()
-        evals.append(evaluator.history_row(result))
-        result = {**result, "selection": selection, "sampler": sampler_record(chosen)}
-        (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
-        summary.update(
-            success_once=result["success_once"],
-            success_at_end=result["success_at_end"],
-            eval_episodes=result["episodes"],
-            chunk_latency_ms_median=result.get("latency_ms_median"),
-        )
-    summary["wall_seconds"] = round(time.perf_counter() - t_start, 1)
-    save_plots(history, evals, run_dir)
-    save_history(history, evals, run_dir)
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-    print(format_summary(summary))
-    print(f"run directory: {run_dir}")
-    if world > 1:
-        dist.barrier()
+            save_checkpoint(latest, checkpoint_state())
+            # The reported figures: the chosen model on the test seeds, which chose nothing.
+            selection = evaluator.selection(evals, trainer.step)
+            chosen = trainer.ema_actor
+            if selection["step"] != trainer.step:
+                chosen = load_actor(ckpt_dir / "best.pt", use_ema=True, map_location=device)[0]
+            result = evaluator(chosen, trainer.step, video_dir=run_dir / "videos", split="test")
+            evaluator.close()
+            evals.append(evaluator.history_row(result))
+            result = {**result, "selection": selection, "sampler": sampler_record(chosen)}
+            (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
+            summary.update(
+                success_once=result["success_once"],
+                success_at_end=result["success_at_end"],
+                eval_episodes=result["episodes"],
+                chunk_latency_ms_median=result.get("latency_ms_median"),
+            )
+        summary["wall_seconds"] = round(time.perf_counter() - t_start, 1)
+        save_plots(history, evals, run_dir)
+        save_history(history, evals, run_dir)
+        (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        print(format_summary(summary))
+        print(f"run directory: {run_dir}")
+
+    run_on_rank0(report, "evaluating the final model and writing the report")
     return 0
 
 
@@ -254,4 +297,3 @@ def _set_buffer_rng(buffer, state: torch.Tensor) -> None:
     generator = torch.Generator()
     generator.set_state(state)
     buffer.set_rng(generator)
-
