@@ -152,9 +152,14 @@ class CollectorEpisodes:
     def _close(self, held: _Open, *, truncate: bool):
         steps = torch.cat([p.steps for p in held.pieces], 0) if len(held.pieces) > 1 else held.pieces[0].steps
         if truncate:
-            steps = steps.clone()
-            steps.get(("next", "done"))[-1] = True
-            steps.get(("next", "truncated"))[-1] = ~steps.get(("next", "terminated"))[-1]
+            # new tensors, not writes into get()'s result: a lazily stacked batch returns a fresh copy
+            steps = steps.clone(False)
+            done = steps.get(("next", "done")).clone()
+            done[-1] = True
+            truncated = steps.get(("next", "truncated")).clone()
+            truncated[-1] = ~steps.get(("next", "terminated"))[-1]
+            steps.set(("next", "done"), done)
+            steps.set(("next", "truncated"), truncated)
         spans = [(*p.origin, p.origin[2] + p.steps.shape[0]) for p in held.pieces]
         return steps, spans
 
@@ -266,7 +271,8 @@ class EpisodeWriter(Writer):
         steps.set("episode", torch.full((n,), episode, dtype=torch.long))
         steps.set("step", torch.arange(n))
         rows = torch.arange(lo, hi)
-        storage.set(rows, steps, set_cursor=False)
+        storage.set(rows, steps, set_cursor=False)  # the length is the ring's high-water mark, below
+        storage._set_last_cursor(rows)  # what TorchRL's storage checkpointer reads on dumps()
         if storage.alive is None or storage.alive.numel() != capacity:
             storage.alive = torch.zeros(capacity, dtype=torch.bool)
         storage.alive[lo:hi] = True
