@@ -10,7 +10,7 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from torchrl.data import TensorDictReplayBuffer
 
-__all__ = ["load_task_episodes", "make_train_buffer", "resolve_dataset"]
+__all__ = ["chunk_padding", "load_task_episodes", "make_train_buffer", "resolve_dataset"]
 
 
 def resolve_dataset(cfg: DictConfig, rank: int = 0, world: int = 1) -> Path:
@@ -44,7 +44,45 @@ def load_task_episodes(cfg: DictConfig, dataset: Path) -> TensorDictBase:
     return load_episodes(dataset, control_mode=cfg.task.control_mode, memmap_dir=memmap_dir)
 
 
+def chunk_padding(cfg: DictConfig, episodes: TensorDictBase) -> dict:
+    """How the run's chunks are padded past an episode's end (``make_chunk_buffer`` arguments).
+
+    The padded actions follow the control the data record (zero arm motion for delta control, the
+    last action for absolute), checked against ``task.control``; data that record none take the task's.
+    The extent follows ``data.padding``: ``maniskill`` pads up to H - To steps after the end (every
+    step is a window's current step), ``diffusion_policy`` at most K - 1 (K = ``policy.action_steps``;
+    the To - 1 steps before the start are padded under both).
+    """
+    from l1flow_rl.config.data import PADDING_RULES
+    from l1flow_rl.data import EpisodeDataError, action_pad_for, episodes_metadata
+
+    meta = episodes_metadata(episodes)
+    task_control = cfg.task.control
+    if meta.control is not None and meta.control != task_control:
+        raise EpisodeDataError(
+            f"{meta.describe()}: recorded with {meta.control} control (control_mode {meta.control_mode!r}), "
+            f"but task.control is {task_control!r}; chunks would be padded for the wrong control. Use "
+            f"demonstrations recorded with {task_control} control or set task.control={meta.control}"
+        )
+    pcfg = cfg.policy
+    padding = cfg.data.padding
+    if padding == "maniskill":
+        max_pad_after = None
+    elif padding == "diffusion_policy":
+        max_pad_after = int(pcfg.action_steps) - 1
+        most = int(pcfg.pred_horizon) - int(pcfg.obs_horizon)
+        if not 0 <= max_pad_after <= most:
+            raise ValueError(
+                f"data.padding=diffusion_policy pads policy.action_steps - 1 = {max_pad_after} steps after "
+                f"an episode's end, which must lie in [0, policy.pred_horizon - policy.obs_horizon = {most}]"
+            )
+    else:
+        raise ValueError(f"data.padding must be one of {list(PADDING_RULES)}, got {padding!r}")
+    return {"action_pad": action_pad_for(meta.control or task_control), "max_pad_after": max_pad_after}
+
+
 def make_train_buffer(cfg: DictConfig, episodes: TensorDictBase, seed: int) -> TensorDictReplayBuffer:
+    """The run's seeded chunk buffer, padded as :func:`chunk_padding` decides."""
     from l1flow_rl.data import make_chunk_buffer
 
     pcfg, tcfg = cfg.policy, cfg.train
@@ -54,6 +92,6 @@ def make_train_buffer(cfg: DictConfig, episodes: TensorDictBase, seed: int) -> T
         pred_horizon=pcfg.pred_horizon,
         batch_size=tcfg.batch_size,
         seed=seed,
-        action_pad="delta" if cfg.task.control == "delta" else "repeat",
         prefetch=tcfg.prefetch or None,
+        **chunk_padding(cfg, episodes),
     )
