@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import format_table, machine_info, save_results
-from benchmarks.sweep import Run, mean_and_spread, rescore, train
+from benchmarks.sweep import Run, mean_and_spread, rescore, seed_record, train
 
 #: retrained variants: name -> loss options (policy=l1flow otherwise)
 LOSS_VARIANTS: dict[str, list[str]] = {
@@ -100,9 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     for block in results.values():
         evals = block.pop("evals")
         block["success_once"] = mean_and_spread([e["success_once"] for e in evals])
-        block["per_seed"] = [
-            {k: e.get(k) for k in ("success_once", "success_once_ci95", "nfe")} for e in evals
-        ]
+        block["per_seed"] = [seed_record(e) for e in evals]
     figures = {"machine": machine_info(), "quick": args.quick, "args": vars(args), "variants": results}
     out = Path("benchmarks/results") / f"ablations_{args.task}.json"
     if args.quick:

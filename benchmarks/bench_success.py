@@ -26,7 +26,15 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.common import format_table, machine_info, save_results
-from benchmarks.sweep import Run, mean_and_spread, read_history, rescore, steps_to_fraction_of_best, train
+from benchmarks.sweep import (
+    Run,
+    mean_and_spread,
+    read_history,
+    rescore,
+    seed_record,
+    steps_to_fraction_of_best,
+    train,
+)
 
 POLICIES = ("l1flow", "flow", "ddpm", "regression")
 #: re-scorings of a finished network: name -> (policies it applies to, eval overrides)
@@ -122,10 +130,7 @@ def main(argv: list[str] | None = None) -> int:
                 finals = [e["success_once"] for e in evals]
                 results[task][label] = {
                     "success_once": mean_and_spread(finals),
-                    "per_seed": [
-                        {k: e.get(k) for k in ("success_once", "success_once_ci95", "episodes", "seed_split")}
-                        for e in evals
-                    ],
+                    "per_seed": [seed_record(e) for e in evals],
                     "curves": curves if label == policy else [],
                     "steps_to_90pct_of_best": [steps_to_fraction_of_best(c) for c in curves]
                     if label == policy

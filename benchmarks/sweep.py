@@ -19,7 +19,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Run", "mean_and_spread", "read_history", "rescore", "steps_to_fraction_of_best", "train"]
+__all__ = [
+    "Run",
+    "mean_and_spread",
+    "read_history",
+    "rescore",
+    "seed_record",
+    "steps_to_fraction_of_best",
+    "train",
+]
 
 
 @dataclass
@@ -103,3 +111,14 @@ def mean_and_spread(values: Sequence[float]) -> dict[str, float]:
     mean = sum(values) / n
     var = sum((v - mean) ** 2 for v in values) / (n - 1) if n > 1 else 0.0
     return {"mean": mean, "std": math.sqrt(var), "min": min(values), "max": max(values), "n": n}
+
+
+def seed_record(result: dict[str, Any]) -> dict[str, Any]:
+    """What a results table keeps of one eval.json: success, its 95 % interval, the seed split."""
+    return {
+        "success_once": result["success_once"],
+        "ci95": result.get("ci95", {}).get("success_once"),
+        "episodes": result.get("episodes"),
+        "split": result.get("split"),
+        "nfe_per_chunk": result.get("nfe_per_chunk"),
+    }
