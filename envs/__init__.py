@@ -12,6 +12,7 @@ from l1flow_rl.envs.registry import (
     get_simulator,
     register_simulator,
     registered_simulators,
+    unregister_simulator,
 )
 
 __all__ = [
@@ -26,6 +27,7 @@ __all__ = [
     "register_simulator",
     "registered_simulators",
     "resolve_device",
+    "unregister_simulator",
 ]
 
 

@@ -62,14 +62,19 @@ def make_maniskill_env(
 
     if cpu_backend == "async":
         return ManiSkillAsyncEnv(task, num_envs, **env_kwargs)
+    from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
+
+    what = f"ManiSkill on the CPU with num_envs={num_envs} ({task.name!r}, cpu_backend='parallel')"
+    check_main_guard(what)
     # Workers report their specs themselves, so that this process never builds a simulator.
-    return ParallelEnv(
-        num_envs,
-        functools.partial(ManiSkillEnv, task, num_envs=None, **env_kwargs),
-        mp_start_method=use_forkserver(),
-        metadata_from_workers=True,
-        use_buffers=False,
-    )
+    with explain_worker_start_failure(what):
+        return ParallelEnv(
+            num_envs,
+            functools.partial(ManiSkillEnv, task, num_envs=None, **env_kwargs),
+            mp_start_method=use_forkserver(),
+            metadata_from_workers=True,
+            use_buffers=False,
+        )
 
 
 SIMULATOR = register_simulator(

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from l1flow_rl.envs.maniskill.base import ManiSkillEnvBase
 from l1flow_rl.envs.maniskill.env import INSTALL_HINT, ManiSkillEnv
+from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
@@ -166,13 +167,16 @@ class ManiSkillAsyncEnv(ManiSkillEnvBase):
         )
         from gymnasium.vector import AsyncVectorEnv, AutoresetMode
 
+        what = f"ManiSkill on the CPU with num_envs={num_envs} ({task.name!r})"
+        check_main_guard(what)
         make = _WorkerFactory(functools.partial(worker_env, task, num_envs=None, **self.sim_kwargs))
-        self._vec = AsyncVectorEnv(
-            [make] * num_envs,
-            context=use_forkserver(),
-            autoreset_mode=AutoresetMode.DISABLED,
-            copy=False,  # _observation copies out of the shared buffers itself
-        )
+        with explain_worker_start_failure(what):
+            self._vec = AsyncVectorEnv(
+                [make] * num_envs,
+                context=use_forkserver(),
+                autoreset_mode=AutoresetMode.DISABLED,
+                copy=False,  # _observation copies out of the shared buffers itself
+            )
         space = self._vec.single_observation_space
         if task.obs_mode == "state":
             obs_shapes = {"state": tuple(space.shape)}

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from l1flow_rl.envs.maniskill import INSTALL_HINT
 from l1flow_rl.envs.maniskill.base import ManiSkillEnvBase
 from l1flow_rl.envs.maniskill.obs import flatten_maniskill_obs
 from tensordict import TensorDict, TensorDictBase
@@ -19,8 +20,6 @@ from torch import Tensor
 from l1flow_rl.config import TaskConfig
 
 __all__ = ["ManiSkillEnv", "make_gym_env"]
-
-from l1flow_rl.envs.maniskill import INSTALL_HINT
 
 
 def _import_maniskill():

@@ -250,11 +250,15 @@ def _check_task(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
             f"task.obs_mode={obs_mode!r}: simulator {spec.name!r} supports {sorted(spec.obs_modes)}"
         )
         return problems
-    unknown = sorted(set(cfg.task.env or {}) - set(spec.options))
-    if unknown:
-        problems.append(
-            f"task.env: simulator {spec.name!r} takes no option {unknown}; it takes {sorted(spec.options)}"
-        )
+    # task.env keys: checked where the simulator lists them (SimulatorSpec.env_keys); ManiSkill and
+    # robosuite pass the block on to gym.make / robosuite.make, which name a key they do not take.
+    if spec.env_keys is not None:
+        unknown = sorted(set(cfg.task.env or {}) - set(spec.env_keys))
+        if unknown:
+            problems.append(
+                f"task.env: simulator {spec.name!r} takes no key(s) {unknown}; "
+                f"it takes {sorted(spec.env_keys)}"
+            )
     if "network" in scopes:
         task = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(TaskConfig), cfg.task))
         images = [k for k, dims in spec.observation_entries(task).items() if dims == 3]

@@ -36,12 +36,24 @@ def resolve_dataset(cfg: DictConfig, rank: int = 0, world: int = 1) -> Path:
 
 
 def load_task_episodes(cfg: DictConfig, dataset: Path) -> TensorDictBase:
-    """The dataset's episodes, checked against the task's control mode. Image datasets stay
-    memory-mapped on disk next to the demonstrations instead of in RAM."""
-    from l1flow_rl.data import load_episodes
+    """The dataset's episodes, checked against the task's control mode where the file records one
+    (before anything is read). Image datasets stay memory-mapped on disk next to the
+    demonstrations instead of in RAM."""
+    from l1flow_rl.data import EpisodeDataError, load_episodes
+    from l1flow_rl.data.loading import open_episode_file
 
+    # Any format, any simulator: the recorded mode comes from the reader's metadata, not from a
+    # reader option that only some formats take.
+    with open_episode_file(dataset) as reader:
+        recorded = reader.metadata.get("control_mode")
+    if recorded is not None and recorded != cfg.task.control_mode:
+        raise EpisodeDataError(
+            f"{dataset}: recorded with control_mode {recorded!r}, but task.control_mode is "
+            f"{cfg.task.control_mode!r}; use demonstrations recorded in {cfg.task.control_mode!r} or set "
+            f"task.control_mode={recorded}"
+        )
     memmap_dir = dataset.with_suffix(".memmap") if cfg.task.obs_mode != "state" else None
-    return load_episodes(dataset, control_mode=cfg.task.control_mode, memmap_dir=memmap_dir)
+    return load_episodes(dataset, memmap_dir=memmap_dir)
 
 
 def chunk_padding(cfg: DictConfig, episodes: TensorDictBase) -> dict:

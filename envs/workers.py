@@ -1,0 +1,117 @@
+"""Worker processes for simulators: the ``if __name__ == "__main__":`` guard they need, checked
+before any worker starts.
+
+A worker started by forkserver or spawn re-imports the main script (as ``__mp_main__``). Code at
+the script's top level that makes worker envs then runs again inside each worker, which fails while
+it is still starting, and the parent only sees a dead pipe (``EOFError``, ``ConnectionResetError``,
+``BrokenPipeError``). Python's own hint ends up in the worker's traceback, not in the error the user
+gets. :func:`check_main_guard` reads the main script instead and names the line that needs the
+guard. Hand-written: neither multiprocessing, gymnasium nor TorchRL checks this up front.
+"""
+
+from __future__ import annotations
+
+import ast
+import sys
+from contextlib import contextmanager
+from pathlib import Path
+from types import FrameType
+
+__all__ = ["MainGuardError", "check_main_guard", "explain_worker_start_failure"]
+
+_GUARD_HINT = (
+    'put the code that makes the env under `if __name__ == "__main__":` (worker processes re-import '
+    "the main script; see the 'safe importing of main module' note in Python's multiprocessing docs)"
+)
+
+
+class MainGuardError(RuntimeError):
+    """A script makes worker envs at import time, without the ``__main__`` guard."""
+
+
+def _is_main_guard(test: ast.expr) -> bool:
+    """``__name__ == "__main__"`` (either order), alone or inside an ``and``."""
+    if isinstance(test, ast.BoolOp) and isinstance(test.op, ast.And):
+        return any(_is_main_guard(value) for value in test.values)
+    if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
+        return False
+    sides = [test.left, test.comparators[0]]
+    names = [s for s in sides if isinstance(s, ast.Name) and s.id == "__name__"]
+    mains = [s for s in sides if isinstance(s, ast.Constant) and s.value == "__main__"]
+    return len(names) == 1 and len(mains) == 1
+
+
+def _guarded(tree: ast.Module, line: int) -> bool:
+    """Whether ``line`` (of a top-level statement) lies in the body of a ``__main__`` guard."""
+    stack: list[ast.AST] = list(tree.body)
+    while stack:
+        node = stack.pop()
+        start, end = getattr(node, "lineno", None), getattr(node, "end_lineno", None)
+        if start is None or end is None or not start <= line <= end:
+            continue
+        if isinstance(node, ast.If) and _is_main_guard(node.test):
+            in_body = any(s.lineno <= line <= (s.end_lineno or s.lineno) for s in node.body)
+            if in_body:
+                return True
+        stack.extend(ast.iter_child_nodes(node))
+    return False
+
+
+def _main_script_frame(frame: FrameType | None) -> tuple[Path, FrameType] | None:
+    """The frame running the main script's top-level code, if this call comes from there."""
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if not path:  # interactive, ``python -c``, a notebook: nothing is re-imported
+        return None
+    script = Path(path).resolve()
+    found = None
+    while frame is not None:
+        code = frame.f_code
+        if code.co_name == "<module>" and frame.f_globals.get("__name__") == "__main__":
+            try:
+                if Path(code.co_filename).resolve() == script:
+                    found = frame
+            except OSError:
+                pass
+        frame = frame.f_back
+    return (script, found) if found is not None else None
+
+
+def check_main_guard(what: str) -> None:
+    """Raise :class:`MainGuardError` when the caller runs at the top level of the main script
+    outside an ``if __name__ == "__main__":`` guard, where a worker's re-import would run it again.
+
+    ``what`` names what needs the workers, for the message (e.g. ``"ManiSkill on the CPU with
+    num_envs=2"``). Silent when the main
+    script cannot be read, or the call comes from a guard, a function the guard calls, an
+    interactive session, ``python -c`` or a notebook.
+    """
+    found = _main_script_frame(sys._getframe(1))
+    if found is None:
+        return
+    script, frame = found
+    try:
+        tree = ast.parse(script.read_text(), filename=str(script))
+    except (OSError, SyntaxError, ValueError):
+        return
+    line = frame.f_lineno
+    if not _guarded(tree, line):
+        raise MainGuardError(
+            f"{what} needs worker processes, but {script} makes them at import time (line {line}, "
+            f'outside `if __name__ == "__main__":`), so every worker would start workers of its own; '
+            f"{_GUARD_HINT}"
+        )
+
+
+@contextmanager
+def explain_worker_start_failure(what: str):
+    """Turn a worker that died while starting (a broken pipe in this process) into an error that
+    says so, instead of a bare ``EOFError``/``ConnectionResetError``; the worker's own traceback
+    is printed above it."""
+    try:
+        yield
+    except (EOFError, ConnectionError) as err:  # ConnectionError covers BrokenPipe/ConnectionReset
+        raise RuntimeError(
+            f"{what}: a worker process exited while starting ({type(err).__name__}: {err}); its own "
+            f"traceback is printed above. If it ran the script that made it again, {_GUARD_HINT}"
+        ) from err

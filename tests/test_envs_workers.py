@@ -1,0 +1,109 @@
+"""Scripts that make CPU worker envs without the ``if __name__ == "__main__":`` guard are told so,
+instead of getting a ConnectionResetError from a worker that died while starting."""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+from l1flow_rl.envs.workers import _guarded, explain_worker_start_failure
+
+SCRIPT_ERRORS = ("ConnectionResetError", "BrokenPipeError", "EOFError")
+
+
+def run_script(tmp_path, source: str, timeout: int = 300) -> subprocess.CompletedProcess:
+    script = tmp_path / "make_workers.py"
+    script.write_text(textwrap.dedent(source))
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    return subprocess.run(
+        [sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=timeout
+    )
+
+
+@pytest.mark.maniskill
+def test_a_script_without_the_guard_is_told_to_add_it(tmp_path):
+    pytest.importorskip("mani_skill")
+    proc = run_script(
+        tmp_path,
+        """\
+        from l1flow_rl.envs import make_env
+
+        env = make_env("maniskill_pushcube", num_envs=2, max_episode_steps=5)
+        env.rollout(3)
+        """,
+    )
+    assert proc.returncode == 1
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("l1flow_rl.envs.workers.MainGuardError: ManiSkill on the CPU with num_envs=2")
+    assert 'make_workers.py makes them at import time (line 3, outside `if __name__ == "__main__":`)' in last
+    assert not any(name in proc.stderr for name in SCRIPT_ERRORS)
+    assert "Process" not in proc.stderr  # refused before any worker started
+
+
+@pytest.mark.slow
+@pytest.mark.maniskill
+def test_a_worker_that_dies_while_starting_is_explained(tmp_path):
+    # With the up-front check switched off, the workers re-run the script and die: the parent's
+    # broken pipe becomes an error that names the guard.
+    pytest.importorskip("mani_skill")
+    proc = run_script(
+        tmp_path,
+        """\
+        from l1flow_rl.envs import workers
+
+        workers.check_main_guard = lambda what: None
+        from l1flow_rl.envs import make_env
+
+        env = make_env("maniskill_pushcube", num_envs=2, max_episode_steps=5)
+        """,
+    )
+    assert proc.returncode == 1
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith(
+        "RuntimeError: ManiSkill on the CPU with num_envs=2 ('maniskill_pushcube'): a worker"
+    )
+    assert 'if __name__ == "__main__":' in last
+
+
+GUARDED = """\
+import sys
+from x import make_env                              # 2
+
+
+def main():
+    return make_env(num_envs=2)                     # 6
+
+
+if __name__ == "__main__" and len(sys.argv) < 5:
+    env = make_env(                                 # 10
+        num_envs=2,
+    )
+    main()                                          # 13
+else:
+    env = make_env(num_envs=2)                      # 15
+if "__main__" == __name__:
+    main()                                          # 17
+if __name__ == "__mp_main__":
+    main()                                          # 19
+main()                                              # 20
+"""
+
+
+@pytest.mark.parametrize(
+    ("line", "guarded"),
+    [(2, False), (10, True), (11, True), (13, True), (15, False), (17, True), (19, False), (20, False)],
+)
+def test_guard_detection_reads_the_script(line, guarded):
+    assert _guarded(ast.parse(GUARDED), line) is guarded
+
+
+def test_a_broken_pipe_while_starting_names_the_guard():
+    starting = r"making envs: a worker process exited while starting \(EOFError"
+    with pytest.raises(RuntimeError, match=starting), explain_worker_start_failure("making envs"):
+        raise EOFError
+    with pytest.raises(ValueError, match="unrelated"), explain_worker_start_failure("making envs"):
+        raise ValueError("unrelated")
