@@ -160,7 +160,7 @@ class RobosuiteEnv(EnvBase):
         self._elapsed += 1
         if not self._broken:
             try:
-                raw, reward, _, _ = self._sim.step(action)
+                raw, reward = sim.step(self._sim, action)
                 success = bool(self._sim._check_success())
             except Exception as err:  # a MuJoCo failure ends this episode; the next reset rebuilds
                 self._broken, self.last_sim_error = True, f"{type(err).__name__}: {err}"

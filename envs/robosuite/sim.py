@@ -27,7 +27,9 @@ __all__ = [
     "observation_arrays",
     "recorded_control",
     "restore_state",
+    "robomimic_obs",
     "seed_episode",
+    "step",
 ]
 
 INSTALL_HINT = (
@@ -243,6 +245,19 @@ def seed_episode(env, seed: int | None) -> None:
     samplers and robot-noise draws hold a reference to ``env.rng``, so it is re-seeded in place."""
     if seed is not None:
         env.rng.bit_generator.state = np.random.default_rng(int(seed)).bit_generator.state
+
+
+def step(env, action: np.ndarray) -> tuple[dict, float]:
+    """``env.step(action)``, then the observation recomputed at the new state: (raw obs, reward).
+
+    MuJoCo's step integrates positions after computing kinematics, so robosuite's own post-step
+    observation mixes new joint positions with the previous substep's body and site poses (~0.5 mm
+    apart). Recomputing after ``forward()`` makes the observation a function of the stored state
+    alone, so that observations regenerated from a file's states equal those an env produces.
+    """
+    _, reward, _, _ = env.step(np.asarray(action, dtype=np.float64))
+    env.sim.forward()
+    return env._get_observations(force_update=True), float(reward)
 
 
 def restore_state(env, state: np.ndarray, model_xml: str | None = None) -> dict:

@@ -1,0 +1,240 @@
+"""Scripted robosuite demonstrations as a robomimic file.
+
+Episodes run without cameras (~100 steps/s instead of ~14 per camera), recording robomimic's
+low-dimensional observations, the MuJoCo state before each action, the actions, rewards and the
+model XML. An image task's file then gets its camera observations by replaying the stored states
+(:func:`l1flow_rl.envs.robosuite.regenerate.regenerate_observations`). Episode ``i`` of a file
+made with ``seed`` resets the scene from seed ``seed + attempt``; failed attempts are skipped.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import multiprocessing
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from l1flow_rl.config import TaskConfig
+from l1flow_rl.experts.registry import DemoGenerationError
+from l1flow_rl.experts.robosuite.scripted import EXPERT_TASKS, make_expert
+
+__all__ = ["dataset_path", "ensure_robosuite_demos", "run_episode"]
+
+
+def dataset_path(task: TaskConfig, num: int, data_dir: str | os.PathLike, seed: int = 0) -> Path:
+    views = "state" if task.obs_mode == "state" else "+".join(task.cameras) + f"{task.image_size}"
+    return (
+        Path(data_dir)
+        / "robosuite"
+        / task.env_id
+        / f"{task.env_id}.{task.control}.{views}.seed{seed}.n{num}.hdf5"
+    )
+
+
+def run_episode(env, task: TaskConfig, seed: int, max_steps: int | None = None) -> dict | None:
+    """One scripted episode from the scene of ``seed``; the robomimic demo dict, or None when the
+    expert failed. The episode runs 1-3 steps past its first success (while success holds), so
+    that its last stored state (the one before the last action) is a success state too."""
+    from l1flow_rl.envs.robosuite import sim
+
+    max_steps = max_steps or task.max_episode_steps
+    sim.seed_episode(env, seed)
+    raw = env.reset()
+    rng = np.random.default_rng([seed, 7])
+    expert = make_expert(task.env_id, env, rng)
+    expert.reset()
+    extra = int(rng.integers(1, 4))
+    states, actions, rewards, observations = [], [], [], []
+    success, streak = False, 0
+    for _ in range(max_steps):
+        states.append(env.sim.get_state().flatten())
+        observations.append(sim.robomimic_obs(raw, []))
+        action = expert.act()
+        raw, reward = sim.step(env, action)
+        actions.append(action)
+        rewards.append(reward)
+        streak = streak + 1 if env._check_success() else 0
+        if streak > extra:
+            success = True
+            break
+        if expert.failed:
+            break
+    if not success:
+        return None
+    observations.append(sim.robomimic_obs(raw, []))
+    obs = {k: np.stack([o[k] for o in observations[:-1]]) for k in observations[0]}
+    next_obs = {k: np.stack([o[k] for o in observations[1:]]) for k in observations[0]}
+    dones = np.zeros(len(actions), dtype=np.int64)
+    dones[-1] = 1
+    return {
+        "states": np.stack(states),
+        "actions": np.stack(actions),
+        "rewards": np.asarray(rewards),
+        "dones": dones,
+        "obs": obs,
+        "next_obs": next_obs,
+        "model_file": env.sim.model.get_xml(),
+        "attrs": {"seed": seed},
+    }
+
+
+# -- workers -----------------------------------------------------------------------------------------
+
+_WORKER: dict = {}
+
+
+def _worker_init(task: TaskConfig) -> None:
+    import torch
+
+    from l1flow_rl.envs.robosuite import sim
+
+    torch.set_num_threads(1)
+    _WORKER["task"] = task
+    _WORKER["env"] = sim.make_from_env_args(sim.env_args_for_task(task, cameras=[]), source=task.name)
+
+
+def _worker_episode(seed: int) -> tuple[int, dict | None, float]:
+    start = time.perf_counter()
+    demo = run_episode(_WORKER["env"], _WORKER["task"], seed)
+    return seed, demo, time.perf_counter() - start
+
+
+class _InProcess(cf.Executor):
+    """An executor that runs each call at submission, in this process."""
+
+    def submit(self, fn, /, *args, **kwargs) -> cf.Future:
+        future: cf.Future = cf.Future()
+        try:
+            future.set_result(fn(*args, **kwargs))
+        except BaseException as err:  # handed to the caller through the future, as a pool would
+            future.set_exception(err)
+        return future
+
+
+def _longest_failure_run(results: dict[int, dict | None], first: int) -> int:
+    longest = run = 0
+    seed = first
+    while seed in results:
+        run = run + 1 if results[seed] is None else 0
+        longest = max(longest, run)
+        seed += 1
+    return longest
+
+
+def generate(
+    task: TaskConfig,
+    num: int,
+    seed: int = 0,
+    *,
+    workers: int = 2,
+    max_failures: int = 50,
+    progress: bool = True,
+) -> tuple[list[dict], dict]:
+    """``num`` successful demos (in seed order) and statistics (attempts, successes, seconds)."""
+    from tqdm import tqdm
+
+    from l1flow_rl.envs.robosuite import _forkserver
+
+    task = dataclasses.replace(task, obs_mode="state", cameras=[])
+    results: dict[int, dict | None] = {}
+    durations: list[float] = []
+    next_seed = seed
+    bar = tqdm(total=num, desc=f"{task.env_id} demos", unit="demo", disable=not progress)
+    if workers == 1:  # in this process: no worker start-up (~5-10 s), for small batches and tests
+        _worker_init(task)
+        pool_cm: cf.Executor = _InProcess()
+    else:
+        ctx = multiprocessing.get_context(_forkserver())
+        pool_cm = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init, initargs=(task,))
+    with pool_cm as pool:
+        pending: set[cf.Future] = set()
+        while True:
+            successes = sum(1 for d in results.values() if d is not None)
+            # every seed below next_seed is tried, so the first num successes are a function of seed
+            while len(pending) < 2 * workers and successes + len(pending) < num:
+                pending.add(pool.submit(_worker_episode, next_seed))
+                next_seed += 1
+            if not pending:
+                break
+            finished, pending = cf.wait(pending, return_when=cf.FIRST_COMPLETED)
+            for fut in finished:
+                s, demo, seconds = fut.result()
+                results[s] = demo
+                durations.append(seconds)
+                bar.update(demo is not None)
+            run = _longest_failure_run(results, seed)
+            if run > max_failures:
+                for fut in pending:
+                    fut.cancel()
+                raise DemoGenerationError(
+                    f"task {task.name!r}: the scripted expert failed {run} episodes in a row (seeds from "
+                    f"{seed}; {sum(d is None for d in results.values())} failures in {len(results)} episodes)"
+                )
+    bar.close()
+    chosen = sorted(k for k, d in results.items() if d is not None)[:num]
+    tried = max(chosen) - seed + 1
+    stats = {
+        "attempts": tried,
+        "successes": num,
+        "success_rate": num / tried,
+        "seconds_per_episode": float(np.mean(durations)),
+        "steps_per_demo": float(np.mean([len(results[s]["actions"]) for s in chosen])),
+    }
+    return [results[s] for s in chosen], stats
+
+
+def ensure_robosuite_demos(
+    task: TaskConfig,
+    num: int,
+    data_dir: str | os.PathLike,
+    *,
+    seed: int = 0,
+    workers: int | None = None,
+    max_consecutive_failures: int = 50,
+    progress: bool = True,
+) -> Path:
+    """The robomimic file of ``num`` scripted demonstrations of ``task`` under ``data_dir`` (made
+    when missing; an image task's observations are regenerated from the states with its cameras)."""
+    from l1flow_rl.data.formats.robomimic_writer import RobomimicWriter
+    from l1flow_rl.envs.robosuite import sim
+
+    if task.env_id not in EXPERT_TASKS:
+        raise DemoGenerationError(
+            f"task {task.name!r}: no scripted robosuite expert for {task.env_id!r} (experts: "
+            f"{sorted(EXPERT_TASKS)}); point data.path at a robomimic file"
+        )
+    if task.control != "absolute":
+        raise DemoGenerationError(
+            f"task {task.name!r}: the scripted experts act with absolute OSC_POSE targets; "
+            "set control: absolute"
+        )
+    target = dataset_path(task, num, data_dir, seed)
+    if target.is_file():
+        return target
+    workers = workers or min(2, os.cpu_count() or 1)
+    state_task = dataclasses.replace(task, obs_mode="state", cameras=[])
+    low_dim = dataset_path(state_task, num, data_dir, seed)
+    if not low_dim.is_file():
+        demos, stats = generate(
+            state_task, num, seed, workers=workers, max_failures=max_consecutive_failures, progress=progress
+        )
+        with RobomimicWriter(low_dim, sim.env_args_for_task(state_task, cameras=[])) as writer:
+            for demo in demos:
+                writer.add(demo)
+            writer.add_mask("train", [f"demo_{i}" for i in range(num)])
+        if progress:
+            print(
+                f"{task.env_id}: {num} demos, expert success {stats['success_rate']:.2f} over "
+                f"{stats['attempts']} seeds, {stats['seconds_per_episode']:.2f} s/episode"
+            )
+    if low_dim == target:
+        return target
+    from l1flow_rl.envs.robosuite.regenerate import regenerate_observations
+
+    return regenerate_observations(
+        low_dim, target, cameras=task.cameras, image_size=task.image_size, workers=workers, progress=progress
+    )

@@ -1,0 +1,244 @@
+"""Scripted pick-and-place experts for robosuite's Lift, Stack and PickPlaceCan, written against
+privileged simulator state (object poses from MuJoCo, the end effector from the observation).
+
+An expert is a list of phases (move above the object, descend, close, lift, carry, release, ...).
+Each phase's target is computed from the live object poses when the phase starts, and the
+commanded pose walks towards it at a bounded speed, so actions are smooth absolute OSC_POSE
+targets [x, y, z, axis-angle, gripper]. Every episode draws its own speed, grasp offset, heights,
+yaw jitter and gripper timing from its seed, so that the demonstrations are not one trajectory.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ["EXPERT_TASKS", "Phase", "ScriptedExpert", "canonical_rotvec", "make_expert"]
+
+OPEN, CLOSED = -1.0, 1.0
+
+#: the half-space the absolute actions' axis-angle is kept in (see :func:`canonical_rotvec`)
+_ROTVEC_REFERENCE = np.array([-1.0, 0.0, 0.0])
+
+
+def _up(height: float) -> np.ndarray:
+    return np.array([0.0, 0.0, height])
+
+
+def canonical_rotvec(rotation: Rotation) -> np.ndarray:
+    """Axis-angle of ``rotation`` with a positive component along (-1, 0, 0).
+
+    A top-down gripper is a rotation by ~pi, where axis-angle is ambiguous (r and r - 2 pi r/|r|
+    are the same rotation); scipy picks either side, which would make the recorded actions jump
+    by ~2 pi between steps. Keeping one side makes them continuous for yaws within +-180 deg of
+    the robot's home pose.
+    """
+    r = rotation.as_rotvec()
+    angle = float(np.linalg.norm(r))
+    if angle > 1e-6 and float(r @ _ROTVEC_REFERENCE) < 0:
+        r = r - 2 * np.pi * r / angle
+    return r
+
+
+@dataclass
+class Phase:
+    """Move the commanded position to ``target()`` (evaluated when the phase starts) with the
+    gripper at ``gripper``; done once the end effector is within ``tol`` of it and ``hold`` more
+    steps have passed (closing fingers need them)."""
+
+    name: str
+    target: Callable[[], np.ndarray]
+    gripper: float
+    tol: float = 0.01
+    hold: int = 0
+    speed_scale: float = 1.0
+
+
+class ScriptedExpert:
+    """Runs phases on a robosuite env whose arm takes absolute world-frame OSC_POSE targets."""
+
+    #: a phase that has not converged after this many steps has failed (the object slipped, ...)
+    PHASE_TIMEOUT = 120
+
+    def __init__(self, env, rng: np.random.Generator) -> None:
+        self.env, self.rng = env, rng
+        self.speed = rng.uniform(0.012, 0.022)  # metres per control step (20 Hz): 0.24-0.44 m/s
+        self.phases: list[Phase] = []
+        self._phase = 0
+        self._started = False
+        self._target = np.zeros(3)
+        self._elapsed = 0
+        self._held = 0
+        self._cmd_pos: np.ndarray | None = None
+        self._cmd_yaw = 0.0
+        self._yaw_goal = 0.0
+        self._home: Rotation | None = None
+        self._gripper = OPEN
+        self.failed = False
+
+    # -- privileged state --------------------------------------------------------------------------
+
+    def eef_pos(self) -> np.ndarray:
+        robot = self.env.robots[0]
+        return np.array(self.env.sim.data.site_xpos[robot.eef_site_id["right"]])
+
+    def body_pos(self, body_id: int) -> np.ndarray:
+        return np.array(self.env.sim.data.body_xpos[body_id])
+
+    def body_yaw(self, body_id: int) -> float:
+        w, x, y, z = self.env.sim.data.body_xquat[body_id]
+        return float(Rotation.from_quat([x, y, z, w]).as_euler("xyz")[2])
+
+    def eef_rotation(self) -> Rotation:
+        robot = self.env.robots[0]
+        mat = np.array(self.env.sim.data.site_xmat[robot.eef_site_id["right"]]).reshape(3, 3)
+        return Rotation.from_matrix(mat)
+
+    def align_yaw(self, object_yaw: float, symmetry: float) -> None:
+        """Turn the gripper about the vertical so that its fingers meet the object's faces (the
+        object looks the same every ``symmetry`` radians), plus a little jitter."""
+        home_yaw = float(self._home.as_euler("xyz")[2]) if self._home is not None else 0.0
+        delta = (object_yaw - home_yaw + symmetry / 2) % symmetry - symmetry / 2
+        self._yaw_goal = delta + self.rng.uniform(-0.08, 0.08)
+
+    # -- control -----------------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        self._cmd_pos = self.eef_pos()
+        self._home = self.eef_rotation()
+        self.phases = self.plan()
+
+    def plan(self) -> list[Phase]:
+        raise NotImplementedError
+
+    @property
+    def done(self) -> bool:
+        return self._phase >= len(self.phases)
+
+    def act(self) -> np.ndarray:
+        """The next action; after the last phase it holds the last command."""
+        if not self.done:
+            phase = self.phases[self._phase]
+            if not self._started:
+                self._target, self._started = np.asarray(phase.target(), dtype=float), True
+                self._elapsed = self._held = 0
+            self._gripper = phase.gripper
+            step = self._target - self._cmd_pos
+            dist = float(np.linalg.norm(step))
+            max_step = self.speed * phase.speed_scale
+            self._cmd_pos = self._cmd_pos + (step if dist <= max_step else step * max_step / dist)
+            self._elapsed += 1
+            if np.linalg.norm(self.eef_pos() - self._target) < phase.tol and dist <= max_step:
+                self._held += 1
+                if self._held > phase.hold:
+                    self._phase, self._started = self._phase + 1, False
+            elif self._elapsed > self.PHASE_TIMEOUT:
+                self.failed = True
+        self._cmd_yaw += float(np.clip(self._yaw_goal - self._cmd_yaw, -0.08, 0.08))
+        rotation = Rotation.from_euler("z", self._cmd_yaw) * self._home
+        return np.concatenate([self._cmd_pos, canonical_rotvec(rotation), [self._gripper]])
+
+
+class LiftExpert(ScriptedExpert):
+    """Above the cube, down, close, lift (robosuite's success: the cube 4 cm above the table)."""
+
+    def plan(self) -> list[Phase]:
+        env, rng = self.env, self.rng
+        cube = env.cube_body_id
+        self.align_yaw(self.body_yaw(cube), np.pi / 2)
+        grasp = np.array([*rng.uniform(-0.006, 0.006, 2), rng.uniform(-0.012, 0.0)])
+        above = rng.uniform(0.05, 0.12)
+        return [
+            Phase("above", lambda: self.body_pos(cube) + grasp + [0, 0, above], OPEN, tol=0.02),
+            Phase("descend", lambda: self.body_pos(cube) + grasp, OPEN, tol=0.008, speed_scale=0.6),
+            Phase("close", lambda: self._cmd_pos, CLOSED, tol=0.02, hold=int(rng.integers(5, 9))),
+            Phase("lift", lambda: self._cmd_pos + _up(rng.uniform(0.12, 0.2)), CLOSED, tol=0.03),
+        ]
+
+
+class StackExpert(ScriptedExpert):
+    """Pick cube A, carry it above cube B, lower it onto B, open and back off."""
+
+    def plan(self) -> list[Phase]:
+        env, rng = self.env, self.rng
+        a, b = env.cubeA_body_id, env.cubeB_body_id
+        self.align_yaw(self.body_yaw(a), np.pi / 2)
+        grasp = np.array([*rng.uniform(-0.005, 0.005, 2), rng.uniform(-0.008, 0.0)])
+        above = rng.uniform(0.05, 0.1)
+        carry = rng.uniform(0.1, 0.16)
+        # cube B's top is 2.5 cm above its centre; cube A's centre sits 2 cm above that
+        drop = rng.uniform(0.047, 0.053)
+        return [
+            Phase("above_a", lambda: self.body_pos(a) + grasp + [0, 0, above], OPEN, tol=0.02),
+            Phase("descend", lambda: self.body_pos(a) + grasp, OPEN, tol=0.008, speed_scale=0.6),
+            Phase("close", lambda: self._cmd_pos, CLOSED, tol=0.02, hold=int(rng.integers(5, 9))),
+            Phase("lift", lambda: self._cmd_pos + _up(carry), CLOSED, tol=0.03),
+            Phase(
+                "above_b",
+                lambda: self.body_pos(b) + self._grip_offset(a) + [0, 0, drop + 0.05],
+                CLOSED,
+                tol=0.012,
+            ),
+            Phase(
+                "lower",
+                lambda: self.body_pos(b) + self._grip_offset(a) + [0, 0, drop],
+                CLOSED,
+                tol=0.01,
+                speed_scale=0.4,
+            ),
+            Phase("open", lambda: self._cmd_pos, OPEN, tol=0.03, hold=int(rng.integers(3, 7))),
+            Phase("retreat", lambda: self._cmd_pos + _up(0.08), OPEN, tol=0.03),
+        ]
+
+    def _grip_offset(self, body_id: int) -> np.ndarray:
+        """Where the end effector is relative to the held object (so the object, not the gripper,
+        lands on the target)."""
+        return self.eef_pos() - self.body_pos(body_id)
+
+
+class CanExpert(ScriptedExpert):
+    """Pick the can from the left bin and drop it into its compartment of the right bin."""
+
+    def plan(self) -> list[Phase]:
+        env, rng = self.env, self.rng
+        can = env.obj_body_id["Can"]
+        goal = np.array(env.target_bin_placements[env.object_to_id["can"]], dtype=float)
+        # the fingers close around the can's upper half: lower, they meet it before their target
+        grasp = np.array([*rng.uniform(-0.004, 0.004, 2), rng.uniform(0.0, 0.02)])
+        above = rng.uniform(0.06, 0.12)
+        # the far compartment is near the arm's reach: carry low, and accept a few cm of lag there
+        carry_z = env.bin2_pos[2] + rng.uniform(0.16, 0.2)
+        release_z = env.bin2_pos[2] + rng.uniform(0.1, 0.13)
+        # aim at the compartment's near part (it spans ~20 x 25 cm): its centre is at the edge of reach
+        jitter = np.array([-rng.uniform(0.02, 0.06), -rng.uniform(0.03, 0.07), 0.0])
+        return [
+            Phase("above", lambda: self.body_pos(can) + grasp + [0, 0, above], OPEN, tol=0.02),
+            Phase("descend", lambda: self.body_pos(can) + grasp, OPEN, tol=0.012, speed_scale=0.6),
+            Phase("close", lambda: self._cmd_pos, CLOSED, tol=0.02, hold=int(rng.integers(5, 9))),
+            Phase("lift", lambda: np.array([*self._cmd_pos[:2], carry_z]), CLOSED, tol=0.03),
+            Phase("carry", lambda: np.array([goal[0], goal[1], carry_z]) + jitter, CLOSED, tol=0.04),
+            Phase("lower", lambda: np.array([goal[0], goal[1], release_z]) + jitter, CLOSED, tol=0.04),
+            Phase("open", lambda: self._cmd_pos, OPEN, tol=0.05, hold=int(rng.integers(4, 8))),
+            Phase("retreat", lambda: self._cmd_pos + _up(0.1), OPEN, tol=0.03),
+        ]
+
+
+#: env ids the scripted experts solve
+EXPERT_TASKS: dict[str, type[ScriptedExpert]] = {
+    "Lift": LiftExpert,
+    "Stack": StackExpert,
+    "PickPlaceCan": CanExpert,
+}
+
+
+def make_expert(env_id: str, env, rng: np.random.Generator) -> ScriptedExpert:
+    try:
+        cls = EXPERT_TASKS[env_id]
+    except KeyError:
+        raise ValueError(
+            f"no scripted robosuite expert for {env_id!r}; experts exist for {sorted(EXPERT_TASKS)}"
+        ) from None
+    return cls(env, rng)
