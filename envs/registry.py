@@ -39,6 +39,7 @@ import importlib
 import importlib.util
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from tensordict.utils import NestedKey
@@ -98,6 +99,12 @@ class SimulatorSpec:
         env_keys: the keys the task's ``env`` block may hold, checked at config time and by
             ``make_env``; ``None`` (ManiSkill, robosuite) passes the block on to the simulator's
             own constructor (``gym.make``, ``robosuite.make``), which names a key it does not take.
+        prepare_dataset: ``(task, path, data_dir) -> path``: makes a demonstration file usable by
+            the task before it is read, e.g. robosuite's: a robomimic file without the observations
+            the task needs gets a copy under ``data_dir`` with them regenerated from its states.
+            None: files are used as they are.
+        reader_options: ``task -> options`` for :func:`l1flow_rl.data.load_episodes` that select the
+            task's observation from a file (robosuite: ``state_keys`` and cameras). None: none.
         episode_metrics: extra per-episode metrics the evaluator reports (mean and 95 % interval
             over episodes): ``name -> (reduction, step entry)``, reduction one of
             :data:`EPISODE_REDUCTIONS` over the episode's steps; e.g. PushT's Diffusion Policy
@@ -119,6 +126,8 @@ class SimulatorSpec:
     obs_modes: tuple[str, ...] = ("state",)
     options: tuple[str, ...] = field(default=())
     env_keys: tuple[str, ...] | None = None
+    prepare_dataset: Callable[[TaskConfig, Path, Path], Path] | None = None
+    reader_options: Callable[[TaskConfig], Mapping[str, Any]] | None = None
     episode_metrics: Mapping[str, tuple[str, NestedKey]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:

@@ -71,6 +71,18 @@ def make_robosuite_env(
     return env.to(device) if device.type != "cpu" else env
 
 
+def _prepare_dataset(task: TaskConfig, path, data_dir):
+    from l1flow_rl.envs.robosuite.dataset import prepare_robomimic_dataset
+
+    return prepare_robomimic_dataset(task, path, data_dir)
+
+
+def _reader_options(task: TaskConfig) -> Mapping:
+    from l1flow_rl.envs.robosuite.dataset import robosuite_reader_options
+
+    return robosuite_reader_options(task)
+
+
 SIMULATOR = register_simulator(
     SimulatorSpec(
         name="robosuite",
@@ -79,6 +91,8 @@ SIMULATOR = register_simulator(
         install_hint=INSTALL_HINT,
         requires=("robosuite", "mujoco"),
         obs_modes=("state", "rgb"),
+        prepare_dataset=_prepare_dataset,
+        reader_options=_reader_options,
     )
 )
 

@@ -16,6 +16,7 @@ __all__ = ["chunk_padding", "load_task_episodes", "make_train_buffer", "resolve_
 def resolve_dataset(cfg: DictConfig, rank: int = 0, world: int = 1) -> Path:
     """``data.path`` when given, else the expert's cached (or newly made) demonstrations. Only rank 0
     makes demonstrations; the others receive the path."""
+    from l1flow_rl.envs import get_simulator
     from l1flow_rl.experts import ensure_demos
     from l1flow_rl.experts.cli import demo_options
 
@@ -23,6 +24,9 @@ def resolve_dataset(cfg: DictConfig, rank: int = 0, world: int = 1) -> Path:
         task = OmegaConf.to_object(cfg.task)
         if cfg.data.path:
             dataset = Path(cfg.data.path)
+            prepare = get_simulator(task.simulator).prepare_dataset
+            if prepare is not None:  # e.g. robosuite: observations regenerated from stored states
+                dataset = prepare(task, dataset, Path(cfg.data_dir))
         else:
             dataset = ensure_demos(
                 task, cfg.demos.num, cfg.data_dir, seed=cfg.demos.seed, **demo_options(cfg, task)
@@ -41,10 +45,14 @@ def load_task_episodes(cfg: DictConfig, dataset: Path) -> TensorDictBase:
     demonstrations instead of in RAM."""
     from l1flow_rl.data import EpisodeDataError, load_episodes
     from l1flow_rl.data.loading import open_episode_file
+    from l1flow_rl.envs import get_simulator
 
+    # the entries of the task's observation (robosuite: state_keys, cameras), where its simulator says
+    select = get_simulator(cfg.task.simulator).reader_options
+    options = dict(select(OmegaConf.to_object(cfg.task))) if select is not None else {}
     # Any format, any simulator: the recorded mode comes from the reader's metadata, not from a
     # reader option that only some formats take.
-    with open_episode_file(dataset) as reader:
+    with open_episode_file(dataset, **options) as reader:
         recorded = reader.metadata.get("control_mode")
     if recorded is not None and recorded != cfg.task.control_mode:
         raise EpisodeDataError(
@@ -53,7 +61,7 @@ def load_task_episodes(cfg: DictConfig, dataset: Path) -> TensorDictBase:
             f"task.control_mode={recorded}"
         )
     memmap_dir = dataset.with_suffix(".memmap") if cfg.task.obs_mode != "state" else None
-    return load_episodes(dataset, memmap_dir=memmap_dir)
+    return load_episodes(dataset, memmap_dir=memmap_dir, **options)
 
 
 def chunk_padding(cfg: DictConfig, episodes: TensorDictBase) -> dict:
