@@ -15,8 +15,11 @@ import torch
 
 from l1flow_rl import L1FlowActor
 from l1flow_rl.workspace.checkpoint import (
+    RESUME_MAY_CHANGE,
     CheckpointMismatchError,
+    ResumeMismatchError,
     check_compatible,
+    check_resumable,
     load_checkpoint,
     load_state_into,
     save_checkpoint,
@@ -107,3 +110,69 @@ def test_loading_weights_into_another_network_says_what_differs():
     deeper = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32, 64))
     with pytest.raises(CheckpointMismatchError, match=r"not in model|missing from checkpoint"):
         load_state_into(small, deeper.state_dict())
+
+
+def _train_config(**changes):
+    from omegaconf import OmegaConf
+
+    from l1flow_rl.cli import compose_config
+
+    cfg = compose_config(["run_dir=runs/x"])
+    for key, value in changes.items():
+        OmegaConf.update(cfg, key, value, merge=False)
+    return cfg
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("task.name", "maniskill_pickcube"),  # the dataset
+        ("task.env_id", "PickCube-v1"),
+        ("demos.num", 7),
+        ("demos.seed", 3),
+        ("data.path", "/data/mine.hdf5"),
+        ("seed", 5),
+        ("train.steps", 9999),  # the schedule
+        ("train.batch_size", 8),
+        ("train.lr", 0.5),
+        ("train.warmup_steps", 3),
+        ("policy.loss", "regression"),  # the loss and its options
+        ("policy.loss_kwargs.loss_type", "mse"),
+        ("policy.sampler_kwargs.t_first", 0.25),
+        ("policy.down_dims", [8, 16]),  # the network
+    ],
+)
+def test_resume_refuses_a_changed_dataset_schedule_or_loss_naming_the_field(field, value):
+    from omegaconf import OmegaConf
+
+    saved = OmegaConf.to_container(_train_config(), resolve=True)
+    with pytest.raises(ResumeMismatchError, match=rf"^resume=true: .*\n  {field}: checkpoint has ") as info:
+        check_resumable(saved, _train_config(**{field: value}), "runs/x/checkpoints/latest.pt")
+    assert str(info.value).count("checkpoint has") == 1  # only the changed field is named
+    assert "runs/x/checkpoints/latest.pt" in str(info.value)
+    assert isinstance(info.value, CheckpointMismatchError)
+
+
+def test_resume_accepts_changes_to_evaluation_logging_and_cadence():
+    from omegaconf import OmegaConf
+
+    saved = OmegaConf.to_container(_train_config(), resolve=True)
+    allowed = {
+        "eval.episodes": 3,
+        "eval.num_envs": 1,
+        "train.log_every": 1,
+        "train.checkpoint_every": 7,
+        "train.eval_every": 11,
+        "train.logger": "tensorboard",
+        "task.max_episode_steps": 300,
+        "device": "cpu",
+        "data_dir": "elsewhere",
+        "run_dir": "runs/y",
+        "resume": True,
+    }
+    check_resumable(saved, _train_config(**allowed), "latest.pt")
+    for key in allowed:  # each one is allowed by RESUME_MAY_CHANGE, not by accident
+        assert any(key == p or (p.endswith(".*") and key.startswith(p[:-1])) for p in RESUME_MAY_CHANGE), key
+    # A field the checkpoint predates is not compared; one it records must still match.
+    del saved["data"]["padding"]
+    check_resumable(saved, _train_config(**{"data.padding": "diffusion_policy"}), "latest.pt")

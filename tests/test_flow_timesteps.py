@@ -43,6 +43,41 @@ def test_mixed_logit_normal_moments():
     assert t.min() > 0.0 and t.max() < 1.0
 
 
+def _normal_cdf(x: float) -> float:
+    return 0.5 * math.erfc(-x / math.sqrt(2))
+
+
+def _logit(p: float) -> float:
+    return math.log(p / (1 - p))
+
+
+def _assert_binomial(count: int, n: int, p: float, z_max: float = 4.0) -> None:
+    """``count`` successes in ``n`` draws are consistent with probability ``p`` (|z| < z_max)."""
+    z = (count - n * p) / math.sqrt(n * p * (1 - p))
+    assert abs(z) < z_max, f"{count} of {n} draws, expected {n * p:.1f} (p={p:.3g}): z={z:.1f}"
+
+
+def test_mixed_law_tails_match_the_exact_probabilities():
+    # Exact: P(t < a) = (1 - p_u) * Phi(logit(a)) + p_u * a for t = sigmoid(N(0, 1)) replaced by U(0, 1)
+    # with probability p_u. At a = 0.01 the logit-normal part alone gives Phi(-4.595) = 2.16e-6, so the
+    # 1 % uniform share lifts the tail about 50-fold, to 1.02e-4; at a = 0.001 the uniform share is
+    # all that is left (1e-5 against 2.5e-12).
+    p_ln = _normal_cdf(_logit(0.01))
+    assert p_ln == pytest.approx(2.1625e-6, rel=1e-3)
+    n = 4_000_000
+    t = MixedLogitNormalTimesteps().sample(n, generator=torch.Generator().manual_seed(0))
+    _assert_binomial(int((t < 0.01).sum()), n, 0.99 * p_ln + 0.01 * 0.01)  # 1.021e-4
+    _assert_binomial(int((t > 0.99).sum()), n, 0.99 * p_ln + 0.01 * 0.01)
+    _assert_binomial(int((t < 0.001).sum()), n, 0.99 * _normal_cdf(_logit(0.001)) + 0.01 * 0.001)
+
+
+def test_pure_logit_normal_tail_matches_the_exact_probability():
+    p_ln = _normal_cdf(_logit(0.01))  # 2.16e-6 per tail
+    n = 10_000_000
+    t = MixedLogitNormalTimesteps(p_uniform=0.0).sample(n, generator=torch.Generator().manual_seed(1))
+    _assert_binomial(int(((t < 0.01) | (t > 0.99)).sum()), n, 2 * p_ln)  # about 43 of 10 million
+
+
 def test_pure_logit_normal_and_pure_uniform_ends_of_the_mixture():
     t = draw(MixedLogitNormalTimesteps(p_uniform=0.0))
     assert t.var().item() == pytest.approx(logit_normal_variance(), rel=0.02)

@@ -118,24 +118,44 @@ def test_dp_ema_decay_schedule():
     assert values == sorted(values)
 
 
-def test_make_ema_matches_a_hand_computed_average():
+class _DiffusionPolicyEMA:
+    """Diffusion Policy's EMAModel schedule, written out here independently of ``l1flow_rl.ema``: the
+    k-th call (k = 0, 1, ...) blends with decay(max(0, k - update_after_step - 1)), where
+    decay(s) = 0 for s <= 0, else clamp(1 - (1 + s / inv_gamma) ** -power, min_value, max_value)."""
+
+    def __init__(self, params, power=0.75, inv_gamma=1.0, max_value=0.9999, update_after_step=0):
+        self.params = [p.detach().clone() for p in params]
+        self.power, self.inv_gamma, self.max_value = power, inv_gamma, max_value
+        self.update_after_step, self.optimization_step = update_after_step, 0
+
+    def decay(self) -> float:
+        s = max(0, self.optimization_step - self.update_after_step - 1)
+        if s <= 0:
+            return 0.0
+        return max(0.0, min(1 - (1 + s / self.inv_gamma) ** -self.power, self.max_value))
+
+    def step(self, params) -> None:
+        d = self.decay()
+        self.params = [d * mine + (1 - d) * p.detach() for mine, p in zip(self.params, params)]
+        self.optimization_step += 1
+
+
+@pytest.mark.parametrize(("power", "max_decay"), [(0.75, 0.9999), (2 / 3, 0.6)])
+def test_ema_follows_diffusion_policys_schedule(power, max_decay):
     torch.manual_seed(0)
-    model = torch.nn.Linear(3, 2)
-    ema = make_ema(model)
-    expected = None
-    for call in range(5):
+    model = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.Linear(4, 2))
+    ema = make_ema(model, power=power, max_decay=max_decay)
+    reference = _DiffusionPolicyEMA(model.parameters(), power=power, max_value=max_decay)
+    for _ in range(12):  # with max_decay=0.6 and power 2/3 the clamp binds from the 5th update on
         with torch.no_grad():
             for p in model.parameters():
                 p.add_(torch.randn_like(p))
         ema.update_parameters(model)
-        current = model.weight.detach().clone()
-        if expected is None:
-            expected = current  # the first update copies
-        else:
-            decay = dp_ema_decay(call - 1)  # n-th later update uses decay(n - 1): 0, 1 - 2^-0.75, ...
-            expected = decay * expected + (1 - decay) * current
-        torch.testing.assert_close(ema.module.weight, expected)
-    assert not torch.allclose(ema.module.weight, model.weight)  # from the third update on it lags
+        reference.step(model.parameters())
+        for mine, theirs in zip(ema.module.parameters(), reference.params):
+            torch.testing.assert_close(mine, theirs, rtol=1e-6, atol=1e-6)
+    # From the third update on the average lags the live weights.
+    assert not torch.allclose(ema.module[0].weight, model[0].weight)
 
 
 def test_ema_copies_buffers_such_as_normalisers():

@@ -54,12 +54,16 @@ def test_warmup_cosine_schedule():
     assert f(35) == pytest.approx(0.5 * (1 + math.cos(math.pi * 0.25)))
 
 
-def test_training_lowers_the_loss_and_updates_ema():
-    torch.manual_seed(0)
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_training_cuts_the_loss_by_a_stated_factor_and_updates_ema(seed):
+    # A fixed batch of 64 learnable chunks, 60 steps at lr 3e-3: the mean of the last 10 losses falls
+    # below 0.3x the mean of the first 5 (measured: 0.12-0.19x over seeds 0-5).
+    torch.manual_seed(seed)
     trainer = _trainer(grad_clip=1.0)
     data = _batch(64, seed=1)
     losses = [trainer.train_step(data)["loss"] for _ in range(60)]
-    assert sum(losses[-10:]) / 10 < 0.6 * sum(losses[:5]) / 5
+    start, end = sum(losses[:5]) / 5, sum(losses[-10:]) / 10
+    assert end < 0.3 * start, f"loss {start:.4f} -> {end:.4f} ({end / start:.2f}x)"
     assert trainer.step == 60
     assert trainer.optimizer.param_groups[0]["betas"] == (0.95, 0.999)
     assert trainer.optimizer.param_groups[0]["weight_decay"] == 1e-6

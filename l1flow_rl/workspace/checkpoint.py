@@ -63,7 +63,8 @@ RESUME_MAY_CHANGE: tuple[str, ...] = (
     "train.prefetch",  # sampling threads: speed only (resume is bit-exact only with 0)
     "train.compile",  # the same network, compiled or not
     "task.max_episode_steps",  # the evaluation horizon; the demonstrations are already made
-    "task.env.*",  # simulator options of the evaluation env
+    "task.env",  # simulator options of the evaluation env
+    "task.env.*",
     "device",
     "data_dir",  # where the demonstrations cache lives, not which demonstrations
     "run_dir",
