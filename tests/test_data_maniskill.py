@@ -13,7 +13,7 @@ import torch
 pytest.importorskip("mani_skill")
 
 from l1flow_rl.config import TaskConfig, load_task_config
-from l1flow_rl.data import load_episodes, make_chunk_buffer
+from l1flow_rl.data import episodes_metadata, load_episodes, make_chunk_buffer
 from l1flow_rl.experts import DemoGenerationError, ensure_demos
 from l1flow_rl.experts.maniskill import demos as maniskill_demos
 
@@ -73,6 +73,47 @@ def test_windows_match_the_raw_file_at_both_ends(pushcube):
     first = batch["step"] == 0
     assert torch.equal(batch["observation"][first, 0], batch["observation"][first, 1])
     assert batch["action_is_pad"][first, 0].all() and not batch["action_is_pad"][first, 1:].any()
+
+
+def test_episodes_carry_rewards_terminations_and_final_observations(pushcube):
+    path, _, _ = pushcube
+    eps = load_episodes(path)
+    meta = episodes_metadata(eps)
+    assert (meta.format, meta.source, meta.env_id) == ("maniskill", str(path), "PushCube-v1")
+    assert (meta.control_mode, meta.control) == ("pd_ee_delta_pos", "delta")
+    assert meta.has_rewards and meta.has_final_observation
+    with h5py.File(path) as f:
+        for name in sorted(f):
+            g, e = f[name], int(name[5:])
+            ep = eps[eps["episode"] == e]
+            n = g["actions"].shape[0]
+            obs = g["obs"][()]
+            assert ep.shape == (n,) and obs.shape[0] == n + 1
+            np.testing.assert_array_equal(ep["next", "reward"][:, 0].numpy(), g["rewards"][()])
+            np.testing.assert_array_equal(ep["observation"].numpy(), obs[:n])
+            np.testing.assert_array_equal(
+                ep["next", "observation"].numpy(), obs[1:]
+            )  # the final one included
+            assert ep["next", "done"][:, 0].tolist() == [False] * (n - 1) + [True]
+            terminated = bool(g["terminated"][-1])
+            assert bool(ep["next", "terminated"][-1]) == terminated and terminated  # the demos end in success
+            assert not ep["next", "truncated"].any() and not ep["next", "terminated"][:-1].any()
+    # the chunk return and the next observation at an episode's end, by hand from the raw file
+    h, gamma = 4, 0.9
+    batch = make_chunk_buffer(eps, batch_size=4096, seed=0, rl_horizon=h, gamma=gamma).sample()
+    with h5py.File(path) as f:
+        for i in range(batch.shape[0]):
+            e, t = int(batch["episode"][i]), int(batch["step"][i])
+            rewards, obs = f[f"traj_{e}/rewards"][()], f[f"traj_{e}/obs"][()]
+            n = rewards.shape[0]
+            if t < n - h - 1:
+                continue  # the windows near the end: t+h < L, == L and > L
+            expected = sum(gamma**k * float(rewards[t + k]) for k in range(min(h, n - t)))
+            assert batch["next", "reward"][i].item() == pytest.approx(expected, rel=1e-5)
+            rows = np.clip(np.arange(t + h - 1, t + h + 1), 0, n)
+            np.testing.assert_array_equal(batch["next", "observation"][i].numpy(), obs[rows])
+            assert bool(batch["next", "done"][i]) == (t + h >= n) == bool(batch["next", "terminated"][i])
+            assert bool(batch["chunk_valid"][i]) == (t + h <= n)
 
 
 def test_cache_is_reused_and_generation_resumes(pushcube, monkeypatch):

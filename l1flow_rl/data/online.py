@@ -115,15 +115,15 @@ class CollectorEpisodes:
             )
         serial = self._batches
         self._batches += 1
-        done = _flag(batch, ("next", "done"))
-        traj = batch.get(_TRAJ_KEY).reshape(*batch.shape) if _TRAJ_KEY in batch.keys(True) else None
+        done = _flag(batch, ("next", "done")).tolist()  # Python lists: the loop below reads every step
+        traj = batch.get(_TRAJ_KEY).reshape(*batch.shape).tolist() if _TRAJ_KEY in batch.keys(True) else None
         steps = self._select(batch)
         finished = []
         for env in range(batch.shape[0]):
             held = self._open.get(env) or _Open(traj=None)
             first = 0
             for t in range(batch.shape[1]):
-                this_traj = None if traj is None else int(traj[env, t])
+                this_traj = None if traj is None else traj[env][t]
                 if this_traj is not None and held.traj is not None and this_traj != held.traj:
                     # the collector reset the env without a done: what came before ends truncated
                     if t > first:
@@ -133,7 +133,7 @@ class CollectorEpisodes:
                     held, first = _Open(traj=None), t
                 if held.traj is None:
                     held.traj = this_traj
-                if bool(done[env, t]):
+                if done[env][t]:
                     held.pieces.append(_Piece(steps[env, first : t + 1], (serial, env, first)))
                     finished.append(self._close(held, truncate=False))
                     held, first = _Open(traj=None), t + 1
