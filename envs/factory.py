@@ -61,16 +61,19 @@ def make_env(
 
     Args:
         task: a task config name (a file in ``configs/task``) or a :class:`TaskConfig`.
-        num_envs: parallel envs. On the CPU most simulators run them in worker processes (a script
-            that makes one needs the ``if __name__ == "__main__":`` guard); ManiSkill on CUDA runs
-            one physx_cuda scene with that many envs in this process.
+        num_envs: parallel envs. On the CPU most simulators run them in worker processes: a
+            script that makes them needs the ``if __name__ == "__main__":`` guard, and is told so
+            (:func:`l1flow_rl.envs.workers.check_main_guard`) before any worker starts. ManiSkill
+            on CUDA runs one physx_cuda scene with that many envs in this process.
         device: ``"cpu"``, ``"cuda"``/``"cuda:k"`` or ``"auto"``.
         obs_horizon: To, the number of stacked observations.
         ignore_terminations: ManiSkill's evaluation setting: run every episode to the time limit.
         render: allow ``render_frames()`` (videos); costs nothing measurable until a frame is asked for.
         camera: which camera feeds the image entry when the task has several.
-        options: the simulator's own options (ManiSkill: ``reconfigure_each_episode``,
-            ``cpu_backend``), then task config fields, e.g. ``max_episode_steps=50``.
+        options: the simulator's own options (``SimulatorSpec.options``; ManiSkill:
+            ``reconfigure_each_episode``, ``cpu_backend``), then task config fields, e.g.
+            ``max_episode_steps=50``. Anything else is refused, naming it, before an env is built;
+            so are a missing simulator (with its install hint) and an obs_mode it lacks.
 
     Example:
         >>> env = make_env("maniskill_pushcube", max_episode_steps=20)
