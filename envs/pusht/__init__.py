@@ -1,0 +1,90 @@
+"""PushT (gym-pusht's ``gym_pusht/PushT-v0``) as TorchRL envs. Registers simulator ``"pusht"`` with
+Diffusion Policy's per-episode score; gym-pusht is imported only when an env is made.
+
+    from l1flow_rl.envs import make_env
+    env = make_env("pusht", num_envs=2)    # 2 worker processes, keypoint observations [2, To, 20]
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping
+
+import torch
+from l1flow_rl.envs.registry import SimulatorSpec, register_simulator
+from tensordict.utils import NestedKey
+from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
+
+from l1flow_rl.config import TaskConfig
+
+__all__ = ["BACKENDS", "INSTALL_HINT", "make_pusht_env", "pusht_observation_entries"]
+
+INSTALL_HINT = "pip install 'l1flow-rl[pusht]' (or: pip install gym-pusht==0.1.8)"
+
+#: how make_env runs several PushT envs: worker processes (``parallel``) or one after another in
+#: this process (``serial``, the cheaper for the fast state modes: 1000+ steps/s per env)
+BACKENDS = ("parallel", "serial")
+
+#: TaskConfig.obs_mode values (see l1flow_rl.envs.pusht.env.OBS_MODES)
+PUSHT_OBS_MODES = ("state", "keypoints", "environment_state_agent_pos", "pixels", "pixels_agent_pos")
+
+
+def pusht_observation_entries(task: TaskConfig) -> Mapping[NestedKey, int]:
+    if task.obs_mode == "pixels":
+        return {("observation", "rgb"): 3}
+    if task.obs_mode == "pixels_agent_pos":
+        return {("observation", "state"): 1, ("observation", "rgb"): 3}
+    return {"observation": 1}
+
+
+def make_pusht_env(
+    task: TaskConfig,
+    num_envs: int,
+    device: torch.device,
+    *,
+    ignore_terminations: bool = True,
+    render: bool = True,
+    camera: str | None = None,
+    backend: str = "parallel",
+    mp_start_method: str = "spawn",
+) -> EnvBase:
+    """PushT envs of batch ``[num_envs]``: one :class:`~l1flow_rl.envs.pusht.env.PushTEnv` per worker
+    process (``backend="parallel"``, a single env stays in this process) or all in this process
+    (``"serial"``). The simulator runs on the CPU; outputs move to ``device``. Workers are spawned:
+    forked ones hung at their first reset here (a script that makes them needs the ``__main__``
+    guard)."""
+    from l1flow_rl.envs.pusht.env import PushTEnv
+
+    if backend not in BACKENDS:
+        raise ValueError(f"pusht: backend must be one of {BACKENDS}, got {backend!r}")
+    make = functools.partial(
+        PushTEnv, task, ignore_terminations=ignore_terminations, render=render, camera=camera
+    )
+    if backend == "serial" or num_envs == 1:
+        env = SerialEnv(num_envs, make, device=device)
+    else:
+        env = ParallelEnv(num_envs, make, mp_start_method=mp_start_method, device=device)
+    return env
+
+
+SIMULATOR = register_simulator(
+    SimulatorSpec(
+        name="pusht",
+        factory=make_pusht_env,
+        observation_entries=pusht_observation_entries,
+        install_hint=INSTALL_HINT,
+        requires=("gym_pusht", "pymunk", "pygame"),
+        obs_modes=PUSHT_OBS_MODES,
+        options=("backend", "mp_start_method"),
+        # Diffusion Policy's PushT metric: an episode's score is its best clip(coverage / 0.95, 0, 1)
+        episode_metrics={"score": ("max", "reward"), "max_coverage": ("max", "coverage")},
+    )
+)
+
+
+def __getattr__(name: str):
+    if name == "PushTEnv":  # lazy: the env module imports gymnasium, and gym-pusht when made
+        from l1flow_rl.envs.pusht.env import PushTEnv
+
+        return PushTEnv
+    raise AttributeError(f"module 'l1flow_rl.envs.pusht' has no attribute {name!r}")
