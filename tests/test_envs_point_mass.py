@@ -153,3 +153,11 @@ def test_l1flow_rl_train_on_the_double_writes_eval_json(tmp_path):
     assert "final_distance" in result  # the double's own episode metric reached eval.json
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["task"] == "point_mass_reach" and summary["steps"] == 20
+
+    # ... and `l1flow-rl eval` re-scores the checkpoint on the double
+    eval_dir = tmp_path / "eval"
+    checkpoint = run_dir / "checkpoints" / "best.pt"
+    args = [*TASK_OVERRIDES, f"checkpoint={checkpoint}", "eval.episodes=3", f"run_dir={eval_dir}"]
+    assert main(["eval", *args]) == 0
+    rescored = json.loads((eval_dir / "eval.json").read_text())
+    assert rescored["episodes"] == 3 and [e["length"] for e in rescored["per_episode"]] == [30, 30, 30]
