@@ -189,3 +189,33 @@ def test_rl_arguments_are_checked():
     inside = torch.minimum(torch.tensor([6, 9])[batch["episode"]] - batch["step"], torch.tensor(3))
     expected = sum(0.5**i * (inside > i).float() for i in range(3))
     torch.testing.assert_close(batch["next", "reward"][:, 0], expected)
+
+
+def test_image_observations_get_their_final_frame():
+    # state [e*100 + t], frame value 10 e + t: the history at t+h, the final frame (t = L) included
+    parts = []
+    for e, n in enumerate((5, 7)):
+        frames = (torch.arange(n + 1) + 10 * e).to(torch.uint8).view(n + 1, 1, 1, 1).expand(n + 1, 3, 2, 2)
+        obs = {"state": torch.arange(n + 1.0).unsqueeze(1) + 100 * e, "rgb": frames.clone()}
+        parts.append(
+            assemble_episode(
+                e,
+                {k: v[:n] for k, v in obs.items()},
+                torch.zeros(n, 2),
+                reward=torch.ones(n),
+                terminated=True,
+                final_observation={k: v[n] for k, v in obs.items()},
+            )
+        )
+    eps = attach_metadata(torch.cat(parts), {"has_rewards": True, "has_final_observation": True})
+    batch = make_chunk_buffer(eps, obs_horizon=2, pred_horizon=4, batch_size=300, rl_horizon=3).sample()
+    lengths = torch.tensor([5, 7])[batch["episode"]].unsqueeze(1)
+    steps = (batch["step"].unsqueeze(1) + 3 - 1 + torch.arange(2)).clamp(max=lengths)
+    assert batch["next", "observation", "rgb"].shape == (300, 2, 3, 2, 2)
+    assert torch.equal(
+        batch["next", "observation", "rgb"][:, :, 0, 0, 0].long(), steps + 10 * batch["episode"].unsqueeze(1)
+    )
+    assert torch.equal(
+        batch["next", "observation", "state"][:, :, 0].long(), steps + 100 * batch["episode"].unsqueeze(1)
+    )
+    assert (batch["step"].unsqueeze(1) + 3 >= lengths).any()  # windows that read the final frame were drawn

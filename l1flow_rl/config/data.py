@@ -17,9 +17,11 @@ class DemosConfig:
     seed: int = 0
 
 
-#: how far chunks reach past an episode's ends (see l1flow_rl.data.chunks):
+#: how far chunks reach past an episode's ends (see l1flow_rl.data.chunks and
+#: l1flow_rl.workspace.dataset.chunk_padding); what the padded actions are follows the control the
+#: data record (delta: zero arm motion, absolute: the last action), not this choice:
 #: maniskill: every step is a window's current step, up to H - To padded steps after the end;
-#: diffusion_policy: To - 1 steps before the start and K - 1 after the end.
+#: diffusion_policy: To - 1 steps before the start and K - 1 after the end (K = policy.action_steps).
 PADDING_RULES = ("maniskill", "diffusion_policy")
 
 

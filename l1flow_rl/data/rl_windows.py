@@ -78,7 +78,10 @@ def read_rl_targets(
     at_end = hist == length
     observations = gather(data.get(layout.observation_key), start.unsqueeze(1) + hist.clamp(max=length - 1))
     if bool(at_end.any()):
-        final = gather(data.get(next_key(layout.observation_key)), (end - 1).unsqueeze(1).expand(-1, to))
+        # one final frame per window, broadcast over the history (a view, no copy per history step)
+        final = gather(data.get(next_key(layout.observation_key)), (end - 1).unsqueeze(1))
+        shape = (batch, to) if isinstance(final, TensorDictBase) else (batch, to, *final.shape[2:])
+        final = final.expand(*shape)
         observations = _where_rows(at_end, final, observations)
 
     episode_terminated = gather(data.get(("next", "terminated")), end - 1).reshape(batch, 1).bool()
