@@ -140,3 +140,20 @@ def test_train_command_runs_end_to_end_on_rgb(rgb_demos, tmp_path):
     result = json.loads((run_dir / "eval.json").read_text())
     assert result["episodes"] == 1 and 0.0 <= result["success_once"] <= 1.0
     assert (run_dir / "checkpoints" / "latest.pt").is_file()
+
+
+def test_evaluate_runs_the_policy_in_eval_mode_and_restores_it():
+    from l1flow_rl.envs import make_env
+
+    from l1flow_rl import L1FlowActor, evaluate
+
+    actor = L1FlowActor.for_state(obs_dim=35, action_dim=4, down_dims=(16, 32))
+    modes = []
+    actor.policy.encoder.register_forward_pre_hook(lambda module, args: modes.append(module.training))
+    env = make_env("maniskill_pushcube", max_episode_steps=8)
+    try:
+        evaluate(actor, env, episodes=1, seed=0)
+    finally:
+        env.close()
+    assert modes and not any(modes)  # random crops never reach a rollout
+    assert actor.training  # the caller's mode is back

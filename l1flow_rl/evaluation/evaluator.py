@@ -220,6 +220,9 @@ def evaluate(
     inner = wrapper.actor if wrapper is not None else policy
     timed = _TimedActor(inner, _policy_device(inner))
     calls = _NetworkCalls(inner)
+    # rollouts are inference: eval mode (image encoders centre-crop instead of random crops)
+    was_training = inner.training
+    inner.eval()
     exploration = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     devices = [timed.device] if timed.device.type == "cuda" else []
     start = time.perf_counter()
@@ -274,6 +277,7 @@ def evaluate(
                     add_frames(schedule.slots, env, [i for i, s in enumerate(seeds) if s is not None])
     finally:
         calls.close()
+        inner.train(was_training)
         if wrapper is not None:
             wrapper.actor = inner
         if make is not None and not env.is_closed:
