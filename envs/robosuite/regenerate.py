@@ -12,9 +12,7 @@ worker processes, with a progress bar.
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
 import json
-import multiprocessing
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -99,7 +97,7 @@ def regenerate_observations(
     ``obs``/``next_obs`` recomputed from the states; images of ``cameras`` (default: the file's
     recorded ``camera_names`` when it rendered any, else none) at ``image_size``. Every demo is
     checked (states present, one per action, finite) before any replay starts."""
-    from l1flow_rl.envs.robosuite import _forkserver
+    from l1flow_rl.envs.robosuite.pool import worker_pool
     from tqdm import tqdm
 
     from l1flow_rl.data.formats.base import open_h5
@@ -125,11 +123,10 @@ def regenerate_observations(
     if image_size is not None:
         out_kwargs["camera_heights"] = out_kwargs["camera_widths"] = int(image_size)
     workers = max(1, min(workers or min(2, os.cpu_count() or 1), len(names)))
-    ctx = multiprocessing.get_context(_forkserver())
     initargs = (env_args, cameras, image_size, str(source))
     bar = tqdm(total=len(names), desc=f"regenerating {source.name}", unit="demo", disable=not progress)
     with (
-        cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init, initargs=initargs) as pool,
+        worker_pool(workers, _worker_init, initargs) as pool,
         RobomimicWriter(target, out_args) as writer,
         h5py.File(source, "r") as h5,
     ):

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import dataclasses
-import multiprocessing
 import os
 import time
 from pathlib import Path
@@ -103,18 +102,6 @@ def _worker_episode(seed: int) -> tuple[int, dict | None, float]:
     return seed, demo, time.perf_counter() - start
 
 
-class _InProcess(cf.Executor):
-    """An executor that runs each call at submission, in this process."""
-
-    def submit(self, fn, /, *args, **kwargs) -> cf.Future:
-        future: cf.Future = cf.Future()
-        try:
-            future.set_result(fn(*args, **kwargs))
-        except BaseException as err:  # handed to the caller through the future, as a pool would
-            future.set_exception(err)
-        return future
-
-
 def _longest_failure_run(results: dict[int, dict | None], first: int) -> int:
     longest = run = 0
     seed = first
@@ -137,20 +124,14 @@ def generate(
     """``num`` successful demos (in seed order) and statistics (attempts, successes, seconds)."""
     from tqdm import tqdm
 
-    from l1flow_rl.envs.robosuite import _forkserver
-
     task = dataclasses.replace(task, obs_mode="state", cameras=[])
     results: dict[int, dict | None] = {}
     durations: list[float] = []
     next_seed = seed
     bar = tqdm(total=num, desc=f"{task.env_id} demos", unit="demo", disable=not progress)
-    if workers == 1:  # in this process: no worker start-up (~5-10 s), for small batches and tests
-        _worker_init(task)
-        pool_cm: cf.Executor = _InProcess()
-    else:
-        ctx = multiprocessing.get_context(_forkserver())
-        pool_cm = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=_worker_init, initargs=(task,))
-    with pool_cm as pool:
+    from l1flow_rl.envs.robosuite.pool import worker_pool
+
+    with worker_pool(workers, _worker_init, (task,)) as pool:
         pending: set[cf.Future] = set()
         while True:
             successes = sum(1 for d in results.values() if d is not None)
