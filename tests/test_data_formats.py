@@ -133,8 +133,21 @@ def test_maniskill_rgb_file_is_flattened_like_the_live_env(tmp_path):
         np.testing.assert_array_equal(
             obs["rgb"][5:].numpy(), g["sensor_data/base_camera/rgb"][:8].transpose(0, 3, 1, 2)
         )
-    # without recorded rewards the reward is the sparse one
+        # the final (T+1st) frame and state are the observation after the last action
+        np.testing.assert_array_equal(
+            eps["next", "observation", "rgb"][12].numpy(),
+            g["sensor_data/base_camera/rgb"][8].transpose(2, 0, 1),
+        )
+        np.testing.assert_array_equal(eps["next", "observation", "state"][12].numpy(), expected[8])
+    # without recorded rewards the reward is the sparse one, and the metadata says none was recorded
     assert torch.equal(eps["next", "reward"], eps["next", "sparse_reward"])
+    assert episodes_metadata(eps).has_rewards is False
+    with pytest.raises(EpisodeDataError, match=r"demo\.rgb\.h5: records no rewards"):
+        make_chunk_buffer(eps, obs_horizon=2, pred_horizon=4, rl_horizon=2)
+    batch = make_chunk_buffer(
+        eps, obs_horizon=2, pred_horizon=4, batch_size=8, rl_horizon=2, reward_key=("next", "sparse_reward")
+    ).sample()
+    assert batch["next", "observation", "rgb"].shape == (8, 2, 3, 6, 7)
 
 
 @pytest.mark.parametrize("image", [True, False])
