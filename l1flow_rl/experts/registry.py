@@ -6,8 +6,10 @@ imports no simulator until demonstrations are made) or by any user module callin
 
 The contract: ``make(task, num, data_dir, seed=..., **options) -> Path`` returns a file or directory
 that :func:`l1flow_rl.data.load_episodes` reads, holding ``num`` successful demonstrations of
-``task`` with rewards, generating only what its cache under ``data_dir`` lacks (idempotent, resumable,
-atomic: a half-written dataset never carries the final name).
+``task`` with rewards, termination flags and the observation after each episode's last action (so
+that a critic can learn from them; ``episodes_metadata`` reports what a file records), recorded in
+the task's control mode, generating only what its cache under ``data_dir`` lacks (idempotent,
+resumable, atomic: a half-written dataset never carries the final name).
 """
 
 from __future__ import annotations
