@@ -172,7 +172,8 @@ class FlakyManiSkillEnv(ManiSkillEnv):
 
 def test_a_simulator_error_ends_that_episode_and_the_simulator_is_rebuilt():
     task = load_task_config("maniskill_pushcube", max_episode_steps=6)
-    result = evaluate_then_close(TransformedEnv(FlakyManiSkillEnv(task), history_transforms({"observation": 1}, 2)), 2)
+    env = TransformedEnv(FlakyManiSkillEnv(task), history_transforms({"observation": 1}, 2))
+    result = evaluate_then_close(env, 2)
     first, second = result["per_episode"]
     assert first["error"] == "RuntimeError: PhysX: simulation blew up"
     assert first["length"] == 2 and not first["success_once"]

@@ -33,9 +33,7 @@ class PeriodicEvaluator:
         """The metric that picks the best checkpoint (the protocol's headline)."""
         return self.plan.headline
 
-    def __call__(
-        self, actor, step: int, video_dir: Path | None = None, split: str = "val"
-    ) -> dict[str, Any]:
+    def __call__(self, actor, step: int, video_dir: Path | None = None, split: str = "val") -> dict[str, Any]:
         from l1flow_rl.evaluation import evaluate
         from l1flow_rl.workspace.logging import log_evaluation
 
