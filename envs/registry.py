@@ -37,6 +37,8 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import pkgutil
+import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,15 +55,21 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "SimulatorNotInstalledError",
     "SimulatorSpec",
+    "builtin_simulator_packages",
     "get_simulator",
     "register_simulator",
     "registered_simulators",
     "unregister_simulator",
 ]
 
-#: Packages under ``l1flow_rl.envs`` that register a simulator when imported. A package outside this
-#: list registers itself on import (``register_simulator`` is public), e.g. a user's own adapter.
-BUILTIN_SIMULATORS: tuple[str, ...] = ("maniskill", "robosuite", "pusht")
+
+def builtin_simulator_packages() -> list[str]:
+    """The packages under ``l1flow_rl.envs`` (``maniskill``, ``robosuite``, ...): each registers a
+    simulator when imported. Found on disk, so that a new simulator package needs no list entry
+    here; a package elsewhere registers itself on import (``register_simulator`` is public)."""
+    import l1flow_rl.envs as envs
+
+    return sorted(m.name for m in pkgutil.iter_modules(envs.__path__) if m.ispkg)
 
 
 class SimulatorNotInstalledError(ImportError):
@@ -234,10 +242,17 @@ def unregister_simulator(name: str) -> None:
     _REGISTRY.pop(name, None)
 
 
-def _load_builtins() -> None:
-    for name in BUILTIN_SIMULATORS:
-        if name not in _REGISTRY and importlib.util.find_spec(f"l1flow_rl.envs.{name}") is not None:
-            importlib.import_module(f"l1flow_rl.envs.{name}")  # registers itself; imports no simulator
+def _load_builtins(first: str | None = None) -> None:
+    """Import the built-in simulator packages not imported yet (``first`` before the others)."""
+    names = builtin_simulator_packages()
+    if first in names:
+        names.insert(0, names.pop(names.index(first)))
+    for name in names:
+        module = f"l1flow_rl.envs.{name}"
+        if module not in sys.modules:
+            importlib.import_module(module)  # registers itself; imports no simulator
+        if name == first and first in _REGISTRY:
+            return
 
 
 def registered_simulators() -> dict[str, SimulatorSpec]:
@@ -249,7 +264,7 @@ def registered_simulators() -> dict[str, SimulatorSpec]:
 def get_simulator(name: str) -> SimulatorSpec:
     """The spec registered under ``name``; an unknown name lists the known ones."""
     if name not in _REGISTRY:
-        _load_builtins()
+        _load_builtins(first=name)
     try:
         return _REGISTRY[name]
     except KeyError:
