@@ -192,7 +192,7 @@ def check_policy(policy: Mapping[str, Any] | DictConfig, prefix: str = "policy")
         unknown = sorted(set(kwargs) - set(accepted))
         problems += [
             f"{prefix}.sampler_kwargs.{k}: sampler {sampler_name!r} takes no such argument; it takes "
-            f"{accepted} (replace them all with {prefix}.sampler_kwargs={{...}})"
+            f"{accepted} (drop it with ~{prefix}.sampler_kwargs.{k})"
             for k in unknown
         ]
         if not unknown:
