@@ -1,0 +1,72 @@
+"""Scripted robosuite experts: success rate over many seeds and seconds per episode, per task.
+
+Each episode runs in this process on one env without cameras (what ``l1flow-rl demos`` runs in each
+worker), from the scene of its seed (0, 1, ...), up to the task's ``max_episode_steps``.
+
+    .venv/bin/python -m benchmarks.bench_robosuite_experts [--seeds 100] [--tasks robosuite_lift ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import torch
+
+from benchmarks.common import format_table, machine_info, save_results
+from l1flow_rl.config import load_task_config
+
+
+def run_task(name: str, seeds: int) -> dict:
+    from l1flow_rl.envs.robosuite import sim
+
+    from l1flow_rl.experts.robosuite.demos import run_episode
+
+    task = load_task_config(name)
+    env = sim.make_from_env_args(sim.env_args_for_task(task, cameras=[]), source=name)
+    seconds, lengths, failed = [], [], []
+    for seed in range(seeds):
+        start = time.perf_counter()
+        demo = run_episode(env, task, seed)
+        seconds.append(time.perf_counter() - start)
+        if demo is None:
+            failed.append(seed)
+        else:
+            lengths.append(len(demo["actions"]))
+    env.close()
+    row = {
+        "task": name,
+        "env_id": task.env_id,
+        "seeds": seeds,
+        "success_rate": (seeds - len(failed)) / seeds,
+        "seconds_per_episode": round(statistics.mean(seconds), 3),
+        "steps_per_success_mean": round(statistics.mean(lengths), 1) if lengths else None,
+        "steps_per_success_max": max(lengths) if lengths else None,
+        "failed_seeds": failed,
+    }
+    print(row, flush=True)
+    return row
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=100)
+    parser.add_argument("--tasks", nargs="*", default=["robosuite_lift", "robosuite_stack", "robosuite_can"])
+    parser.add_argument("--out", default="benchmarks/results/robosuite_experts.json")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    machine_start = machine_info()
+    rows = [run_task(name, args.seeds) for name in args.tasks]
+    print(
+        format_table(rows, ["task", "seeds", "success_rate", "seconds_per_episode", "steps_per_success_mean"])
+    )
+    out = save_results(
+        args.out, {"machine_at_start": machine_start, "machine_at_end": machine_info(), "rows": rows}
+    )
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
