@@ -12,6 +12,7 @@ import torch
 from doubles.point_mass import POINT_MASS_TASK, PointMassEnv
 from doubles.point_mass.env import OBS_DIM, episode_start, expert_action
 from l1flow_rl.envs import get_simulator, make_env
+from l1flow_rl.envs.contract import ContractError, check_env_contract
 from l1flow_rl.envs.per_env import render_frames, seeded_reset
 from tensordict.nn import TensorDictModule
 from torchrl.envs.utils import check_env_specs, step_mdp
@@ -161,3 +162,41 @@ def test_l1flow_rl_train_on_the_double_writes_eval_json(tmp_path):
     assert main(["eval", *args]) == 0
     rescored = json.loads((eval_dir / "eval.json").read_text())
     assert rescored["episodes"] == 3 and [e["length"] for e in rescored["per_episode"]] == [30, 30, 30]
+
+
+@pytest.mark.parametrize("num_envs", [1, 3])
+def test_the_double_honours_the_env_contract(num_envs):
+    check_env_contract(make_env(POINT_MASS_TASK, num_envs=num_envs))
+
+
+class ForgetsSeeds(PointMassEnv):
+    """Ignores reset seeds: every reset draws a fresh episode."""
+
+    def _reset(self, tensordict=None, *, seed=None, **kwargs):
+        return super()._reset(tensordict, seed=None, **kwargs)
+
+
+class ResetsEveryEnv(PointMassEnv):
+    """Ignores the "_reset" mask: a partial reset restarts every env."""
+
+    def _reset(self, tensordict=None, *, seed=None, **kwargs):
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        if mask is not None and not mask.all():  # env 0 from its seed, the others from seed 999
+            return super()._reset(None, seed=[int(seed[0])] + [999] * (self.num_envs - 1), **kwargs)
+        return super()._reset(tensordict, seed=seed, **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("env_class", "message"),
+    [
+        (ForgetsSeeds, r"reset\(seed=\[3, 4\]\) twice gave different observations"),
+        (ResetsEveryEnv, "restarted or changed the envs it did not name"),
+    ],
+)
+def test_the_contract_check_names_a_broken_reset(env_class, message):
+    from l1flow_rl.envs.factory import history_transforms
+    from torchrl.envs import TransformedEnv
+
+    env = TransformedEnv(env_class(POINT_MASS_TASK, 2), history_transforms({"observation": 1}, 2))
+    with pytest.raises(ContractError, match=message):
+        check_env_contract(env)
