@@ -54,12 +54,22 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
         "make demonstrations with the task's expert into data_dir",
     ),
     "toy": ("l1flow_rl.toy", "run_toy", "the multi-modality demonstration (paper Fig. 2): toy.png, toy.json"),
+    "finetune": (
+        "l1flow_rl.workspace.finetune",
+        "run_finetune",
+        "flow Q-learning on a BC checkpoint, offline then online: eval.json, checkpoints",
+    ),
 }
 
 _STAMP = "${now:%Y-%m-%d_%H-%M-%S}"
 #: where the sub-commands that do not train a task's policy put their runs: BASE/<date>_<time>, and a
 #: sweep's jobs in BASE/multirun_<date>_<time>/<num>; the others use configs/config.yaml's hydra block
-RUN_DIRS: dict[str, str] = {"eval": "runs/eval", "demos": "runs/demos", "toy": "runs/toy"}
+RUN_DIRS: dict[str, str] = {
+    "eval": "runs/eval",
+    "demos": "runs/demos",
+    "toy": "runs/toy",
+    "finetune": "runs/finetune",
+}
 
 _CONFIG_NAME = "config"
 _INVALID = (HydraException, OmegaConfBaseException, ValueError)

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from l1flow_rl.config.data import DataConfig, DemosConfig
 from l1flow_rl.config.encoder import EncoderConfig
 from l1flow_rl.config.evaluation import EvalConfig
+from l1flow_rl.config.finetune import FinetuneConfig, OfflineConfig, OnlineConfig
 from l1flow_rl.config.policy import PolicyConfig
 from l1flow_rl.config.task import TaskConfig
 from l1flow_rl.config.toy import ToyConfig
@@ -27,6 +28,9 @@ class AppConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     toy: ToyConfig = field(default_factory=ToyConfig)
+    finetune: FinetuneConfig = field(default_factory=FinetuneConfig)
+    offline: OfflineConfig = field(default_factory=OfflineConfig)
+    online: OnlineConfig = field(default_factory=OnlineConfig)
     data_dir: str = "data"
     # None: the run's own directory (hydra.run.dir, unique per run; see l1flow_rl.cli)
     run_dir: str | None = None

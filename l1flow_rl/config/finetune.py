@@ -1,0 +1,59 @@
+"""Flow-Q fine-tuning settings (``l1flow-rl finetune``): the loss and its optimiser (``finetune``), the
+offline phase on the demonstrations (``offline``) and the online phase in the simulator (``online``).
+
+Defaults follow FQL / QC-FQL (2 LayerNorm critics of 4x512, mean aggregation, tau 0.005, gamma 0.99,
+Adam 3e-4, batch 256, alpha 100, h = the policy's executed chunk length)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+__all__ = ["FINETUNE_MODES", "FinetuneConfig", "OfflineConfig", "OnlineConfig"]
+
+#: ``distill``: FQL's one-step policy mu(s, z) distilled from the L1 Flow 2-NFE chunk and pushed up Q;
+#: ``direct``: the L1 Flow policy itself, Q's gradient through its two network evaluations.
+FINETUNE_MODES = ("distill", "direct")
+
+
+@dataclass
+class FinetuneConfig:
+    mode: str = "distill"  # distill | direct
+    # distill: weight of the distillation loss (FQL: 3-1000 by task family, QC-FQL 100);
+    # direct: weight of the L1 Flow BC loss
+    alpha: float = 100.0
+    train_teacher: bool = False  # distill: co-train the L1 Flow teacher with its BC loss (else frozen)
+    one_step_init: str = "teacher"  # distill: mu starts from the teacher's weights | scratch
+    normalize_q_loss: bool = True
+    q_agg: str = "mean"  # mean | min over the ensemble's target values
+    num_qvalue_nets: int = 2
+    critic_hidden_dims: list[int] = field(default_factory=lambda: [512, 512, 512, 512])
+    gamma: float = 0.99
+    rl_horizon: int = 0  # executed actions per critic chunk; 0: the policy's action_steps
+    tau: float = 0.005  # Polyak rate of the target critics (TorchRL SoftUpdate)
+    lr: float = 3.0e-4
+    batch_size: int = 256
+    grad_clip: float = 0.0  # 0 disables
+    log_every: int = 50  # updates
+    checkpoint_every: int = 500  # updates (online: at the first round end past it)
+
+
+@dataclass
+class OfflineConfig:
+    steps: int = 1000  # gradient updates on the demonstrations, before any environment step
+    eval_every: int = 0  # updates; 0: no evaluation during the offline phase
+
+
+@dataclass
+class OnlineConfig:
+    steps: int = 0  # environment steps collected by the fine-tuned policy (0: offline only)
+    num_envs: int = 2  # collector envs (worker processes on the CPU)
+    frames_per_round: int = 300  # env steps per collection round; updates and checkpoints fall between
+    updates_per_step: float = 1.0  # gradient updates per environment step (FQL: 1)
+    # seed: one buffer that the demonstrations seed and online episodes extend (FQL's default);
+    # balanced: a fixed offline_fraction of every batch from the demonstrations
+    # (TorchRL's OfflineToOnlineReplayBuffer)
+    mixing: str = "seed"
+    offline_fraction: float = 0.5
+    capacity: int = 0  # online steps the buffer keeps; 0: all of them
+    eval_every: int = 0  # env steps; 0: evaluate only at the end
+    env_seed: int = 100_000  # the first collection episode's seed (evaluation uses eval.seed onward)

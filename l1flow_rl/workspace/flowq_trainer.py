@@ -1,0 +1,120 @@
+"""The fine-tuning update: a FlowQLoss on an L1 Flow checkpoint, one Adam over critics and actor, and
+TorchRL's SoftUpdate for the target critics (FQL's recipe)."""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+from torchrl.objectives import SoftUpdate
+
+from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.config.finetune import FINETUNE_MODES
+from l1flow_rl.networks.critic import ChunkCritic, chunk_critic_module
+from l1flow_rl.networks.one_step import ONE_STEP_SAMPLER, make_one_step_actor
+from l1flow_rl.objectives import FlowQLoss
+
+__all__ = ["FlowQTrainer", "finetuned_policy_config"]
+
+
+def finetuned_policy_config(bc_policy_cfg: dict[str, Any], mode: str) -> dict[str, Any]:
+    """The policy config that rebuilds the fine-tuned actor (``load_actor`` / ``l1flow-rl eval``):
+    the BC policy's, with the one-step sampler in ``distill`` mode."""
+    cfg = copy.deepcopy(bc_policy_cfg)
+    if mode == "distill":
+        cfg["sampler"], cfg["sampler_kwargs"] = ONE_STEP_SAMPLER[0], dict(ONE_STEP_SAMPLER[1])
+        cfg["name"] = f"{cfg.get('name', 'l1flow')}_fql"
+    else:
+        cfg["name"] = f"{cfg.get('name', 'l1flow')}_flowq"
+    return cfg
+
+
+class FlowQTrainer:
+    """Builds the fine-tuned actor, the critics and :class:`~l1flow_rl.FlowQLoss` from a BC actor,
+    and runs updates.
+
+    Args:
+        bc_actor: the L1 Flow actor of the BC checkpoint (normalisers fitted); it is copied, never
+            modified.
+        cfg: the ``finetune`` config group.
+    """
+
+    def __init__(self, bc_actor: L1FlowActor, cfg: DictConfig) -> None:
+        if cfg.mode not in FINETUNE_MODES:
+            raise ValueError(f"finetune.mode={cfg.mode!r}; expected one of {FINETUNE_MODES}")
+        self.cfg = cfg
+        policy = bc_actor.policy
+        h = int(cfg.rl_horizon) or policy.action_steps
+        self.reference = copy.deepcopy(bc_actor).requires_grad_(False)  # the BC policy, for BC distance
+        if cfg.mode == "distill":
+            teacher = copy.deepcopy(bc_actor)
+            self.actor = make_one_step_actor(teacher, init=cfg.one_step_init)
+        else:
+            teacher = None
+            self.actor = copy.deepcopy(bc_actor).requires_grad_(True)
+        critics = [
+            chunk_critic_module(
+                ChunkCritic.from_policy(policy, action_horizon=h, hidden_dims=tuple(cfg.critic_hidden_dims))
+            )
+            for _ in range(cfg.num_qvalue_nets)
+        ]
+        self.loss = FlowQLoss(
+            self.actor,
+            critics,
+            teacher_network=teacher,
+            mode=cfg.mode,
+            num_qvalue_nets=cfg.num_qvalue_nets,
+            alpha=cfg.alpha,
+            train_teacher=cfg.train_teacher,
+            normalize_q_loss=cfg.normalize_q_loss,
+            q_agg=cfg.q_agg,
+            gamma=cfg.gamma,
+            rl_horizon=h,
+        )
+        self.rl_horizon = h
+        self.updater = SoftUpdate(self.loss, tau=cfg.tau)
+        params = [p for p in self.loss.parameters() if p.requires_grad]
+        self.optimizer = torch.optim.Adam(params, lr=cfg.lr)
+        self.updates = 0
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        out = self.loss(batch)
+        total = out["loss_actor"] + out["loss_qvalue"]
+        self.optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        params = [p for group in self.optimizer.param_groups for p in group["params"]]
+        clip = self.cfg.grad_clip if self.cfg.grad_clip > 0 else float("inf")
+        grad_norm = torch.nn.utils.clip_grad_norm_(params, clip)
+        self.optimizer.step()
+        self.updater.step()
+        self.updates += 1
+        metrics = {k: float(v.detach()) for k, v in out.items() if v.numel() == 1}
+        metrics["grad_norm"] = float(grad_norm)
+        return metrics
+
+    @torch.no_grad()
+    def bc_distance(self, batch: TensorDictBase, generator: torch.Generator | None = None) -> float:
+        """Mean |fine-tuned chunk - BC chunk| (normalised units, executed steps) from the same noise."""
+        loss, policy = self.loss, self.actor.policy
+        obs = policy.as_obs_dict(batch.get(loss.tensor_keys.observation))
+        shape = (obs.shape[0], policy.pred_horizon, policy.action_dim)
+        device = policy.action_normalizer.scale.device
+        noise = torch.randn(shape, generator=generator, dtype=policy.dtype).to(device)
+        mine = loss._executed(loss._sample(policy, obs, noise))
+        ref = loss._executed(loss._sample(self.reference.policy, obs, noise))
+        return float((mine - ref).abs().mean())
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "loss": self.loss.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "updates": self.updates,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.loss.load_state_dict(state["loss"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.updates = int(state["updates"])

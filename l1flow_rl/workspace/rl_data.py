@@ -1,0 +1,149 @@
+"""The fine-tuning run's replay data: demonstrations and online episodes as chunk windows with RL targets.
+
+``online.mixing``:
+
+* ``"seed"`` (FQL's default): one writable buffer that the demonstrations seed and online episodes
+  extend; batches are drawn uniformly over everything stored.
+* ``"balanced"``: the demonstrations and the online episodes in two buffers; every batch takes
+  exactly ``offline_fraction`` of its windows from the demonstrations (TorchRL's
+  ``OfflineToOnlineReplayBuffer``).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+from torchrl.data import OfflineToOnlineReplayBuffer, TensorDictReplayBuffer
+
+__all__ = ["ChunkOfflineToOnlineBuffer", "RLBuffers"]
+
+MIXING = ("seed", "balanced")
+
+
+class ChunkOfflineToOnlineBuffer(OfflineToOnlineReplayBuffer):
+    """TorchRL's exact per-batch offline/online split, over two chunk-window buffers.
+
+    ``OfflineToOnlineReplayBuffer`` wraps a bare online storage in a uniform row sampler, which cannot
+    cut chunk windows; here the online buffer (its own window sampler and episode writer) is handed in
+    whole and the parent's ``sample``/``anneal``/``extend`` work unchanged.
+    """
+
+    def __init__(
+        self,
+        offline: TensorDictReplayBuffer,
+        online: TensorDictReplayBuffer,
+        *,
+        offline_fraction: float,
+        batch_size: int,
+    ) -> None:
+        super().__init__(offline, online_capacity=1, offline_fraction=offline_fraction, batch_size=batch_size)
+        self._online_buffer = online
+
+
+def _buffer_rng(buffer: TensorDictReplayBuffer) -> torch.Tensor:
+    # TorchRL exposes set_rng but no getter; its own state_dict reads the same attribute.
+    return buffer._rng.get_state().clone()
+
+
+def _set_buffer_rng(buffer: TensorDictReplayBuffer, state: torch.Tensor) -> None:
+    generator = torch.Generator()
+    generator.set_state(state)
+    buffer.set_rng(generator)
+
+
+class RLBuffers:
+    """Demonstration and online chunk buffers of one run, with RL targets for the critic.
+
+    Args:
+        cfg: the composed run config (``policy``, ``task``, ``finetune``, ``online`` groups).
+        episodes: the demonstrations (with rewards and next observations).
+        rl_horizon: h, the critic's executed chunk length.
+        seed: seeds the buffers' generators.
+    """
+
+    def __init__(self, cfg: DictConfig, episodes: TensorDictBase, rl_horizon: int, seed: int) -> None:
+        from l1flow_rl.data import make_chunk_buffer
+        from l1flow_rl.data.online import CORE_KEYS
+
+        ocfg = cfg.online
+        if ocfg.mixing not in MIXING:
+            raise ValueError(f"online.mixing={ocfg.mixing!r}; expected one of {MIXING}")
+        if not 0.0 < ocfg.offline_fraction < 1.0:
+            raise ValueError(f"online.offline_fraction must lie in (0, 1), got {ocfg.offline_fraction}")
+        self.mixing = ocfg.mixing
+        n_demo = int(episodes.shape[0])
+        # room for every online step plus the unfinished episodes a round end flushes
+        online_capacity = int(ocfg.capacity) or int(ocfg.steps) + int(ocfg.frames_per_round)
+        common = dict(
+            obs_horizon=cfg.policy.obs_horizon,
+            pred_horizon=cfg.policy.pred_horizon,
+            batch_size=cfg.finetune.batch_size,
+            action_pad="delta" if cfg.task.control == "delta" else "repeat",
+            rl_horizon=rl_horizon,
+            gamma=cfg.finetune.gamma,
+            keys=CORE_KEYS,  # demonstrations and online episodes share one set of entries
+        )
+        if self.mixing == "seed":
+            self.offline = make_chunk_buffer(
+                episodes, seed=seed, capacity=n_demo + (online_capacity if ocfg.steps > 0 else 0), **common
+            )
+            self.online = self.offline
+            self.mixed: Any = self.offline
+        else:
+            self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
+            self.online = make_chunk_buffer(None, seed=seed + 1, capacity=max(online_capacity, 1), **common)
+            self.mixed = ChunkOfflineToOnlineBuffer(
+                self.offline,
+                self.online,
+                offline_fraction=ocfg.offline_fraction,
+                batch_size=cfg.finetune.batch_size,
+            )
+        self.online_steps_stored = 0
+
+    def sample_offline(self) -> TensorDictBase:
+        return self.offline.sample()
+
+    def sample_online(self) -> TensorDictBase:
+        return self.mixed.sample()
+
+    def add_collected(self, batch: TensorDictBase) -> int:
+        """Store a collector round: finished episodes, then (round end) the unfinished ones as
+        truncated, so that no episode spans two rounds. Returns the steps stored."""
+        written = self.online.extend(batch)
+        flushed = self.online.writer.flush()
+        stored = int((written >= 0).sum()) + int(flushed)
+        self.online_steps_stored += stored
+        return stored
+
+    # -- checkpointing ------------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "offline_rng": _buffer_rng(self.offline),
+            "online_rng": _buffer_rng(self.online),
+            "online_steps_stored": self.online_steps_stored,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        _set_buffer_rng(self.offline, state["offline_rng"])
+        _set_buffer_rng(self.online, state["online_rng"])
+        self.online_steps_stored = int(state["online_steps_stored"])
+
+    def dump_online(self, directory: Path) -> None:
+        """The online buffer (storage, writer, generator) under ``directory``, written atomically."""
+        tmp = directory.parent / f".{directory.name}.partial"
+        shutil.rmtree(tmp, ignore_errors=True)
+        self.online.dumps(tmp)
+        shutil.rmtree(directory, ignore_errors=True)
+        tmp.rename(directory)
+
+    def load_online(self, directory: Path) -> None:
+        if not directory.is_dir():
+            raise FileNotFoundError(
+                f"the checkpoint names the online buffer {str(directory)!r}, which does not exist"
+            )
+        self.online.loads(directory)

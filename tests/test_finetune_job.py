@@ -1,0 +1,174 @@
+"""``l1flow-rl finetune`` end to end on the real ManiSkill PushCube: a BC checkpoint in, offline then
+online FlowQ updates (TorchRL collector, 2 worker envs), eval.json and checkpoints out, exact resume."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
+
+from l1flow_rl.cli import main
+from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_actor, load_checkpoint
+from l1flow_rl.workspace.flowq_trainer import FlowQTrainer
+
+pytestmark = pytest.mark.maniskill
+
+BC = [
+    "demos.num=3",
+    "train.steps=20",
+    "eval.episodes=1",
+    "eval.num_envs=1",
+    "policy.down_dims=[16,32]",
+    "policy.timestep_embed_dim=16",
+    "task.max_episode_steps=30",
+]
+
+# 6 offline updates (checkpoints at 3 and 6), then 2 rounds of 40 env steps (2 envs x 20) with 4
+# updates each (a checkpoint after each round), then 2 test episodes.
+FT = [
+    "offline.steps=6",
+    "online.steps=80",
+    "online.num_envs=2",
+    "online.frames_per_round=40",
+    "online.updates_per_step=0.1",
+    "finetune.batch_size=16",
+    "finetune.critic_hidden_dims=[32,32]",
+    "finetune.log_every=2",
+    "finetune.checkpoint_every=3",
+    "eval.episodes=2",
+    "eval.num_envs=1",
+    "task.max_episode_steps=30",
+]
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("demos")
+
+
+@pytest.fixture(scope="module")
+def bc_checkpoint(tmp_path_factory, data_dir):
+    run_dir = tmp_path_factory.mktemp("bc") / "run"
+    assert main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *BC]) == 0
+    return run_dir / "checkpoints" / "latest.pt"
+
+
+@pytest.fixture(scope="module")
+def finetuned(tmp_path_factory, data_dir, bc_checkpoint):
+    run_dir = tmp_path_factory.mktemp("ft") / "run"
+    args = ["finetune", f"checkpoint={bc_checkpoint}", f"data_dir={data_dir}", f"run_dir={run_dir}", *FT]
+    assert main(args) == 0
+    return run_dir
+
+
+def _differing(a: dict, b: dict) -> list[str]:
+    return [k for k in a if isinstance(a[k], torch.Tensor) and not torch.equal(a[k], b[k])]
+
+
+def test_finetune_offline_then_online_writes_eval_and_checkpoints(finetuned, bc_checkpoint):
+    result = json.loads((finetuned / "eval.json").read_text())
+    assert result["episodes"] == 2 and result["split"] == "test"
+    assert result["env_steps"] == 80 and result["updates"] == 6 + 8 and result["mode"] == "distill"
+    assert 0.0 <= result["success_once"] <= 1.0
+    state = load_checkpoint(finetuned / "checkpoints" / "latest.pt")
+    assert state["progress"] == {"offline_updates": 6, "online_round": 2, "env_steps": 80}
+    assert (finetuned / "checkpoints" / state["online_buffer"]).is_dir()
+    assert (finetuned / "checkpoints" / "best.pt").is_file()
+    history = json.loads((finetuned / "history.json").read_text())
+    assert set(history["history"]["phase"]) == {"offline", "online"}
+    for m in history["history"]["metrics"]:
+        assert {
+            "q_mean",
+            "q_data_mean",
+            "target_mean",
+            "bc_loss",
+            "distill_loss",
+            "lambda",
+            "bc_distance",
+        } <= set(m)
+    # two rounds of 2 envs x 20 steps: every step stored (episodes cut at the round end are truncated)
+    assert [r["env_steps"] for r in history["rounds"]] == [40, 80]
+    assert [r["steps_stored"] for r in history["rounds"]] == [40, 40]
+    assert (finetuned / "finetune.png").stat().st_size > 1000
+    scalars = {p.relative_to(finetuned / "logs").as_posix() for p in (finetuned / "logs").rglob("*.csv")}
+    for name in (
+        "offline/q_mean",
+        "online/q_mean",
+        "online/bc_distance",
+        "collect/episodes_succeeded",
+        "env_steps",
+    ):
+        assert f"finetune/scalars/{name}.csv" in scalars, name
+    # the fine-tuned actor differs from the BC policy, and the BC run's checkpoint is untouched
+    bc = load_checkpoint(bc_checkpoint)
+    assert _differing(state["model"], bc["ema"])
+    assert bc["step"] == 20
+
+
+def test_the_finetuned_checkpoint_is_an_ordinary_actor_for_eval(tmp_path, finetuned):
+    ckpt = finetuned / "checkpoints" / "latest.pt"
+    actor, cfg = load_actor(ckpt)
+    assert actor.sampler.nfe == 1 and cfg.policy.sampler == "euler"  # mu(s, z) = f(z, 0 | s)
+    out = tmp_path / "eval"
+    args = ["eval", f"checkpoint={ckpt}", "eval.episodes=2", "eval.num_envs=1", "task.max_episode_steps=30"]
+    assert main([*args, f"run_dir={out}"]) == 0
+    assert json.loads((out / "eval.json").read_text())["episodes"] == 2
+
+
+def test_resume_matches_an_uninterrupted_run(tmp_path, data_dir, bc_checkpoint, finetuned, monkeypatch):
+    """Crash in the second online round, resume from the checkpoint after the first: the same
+    weights, critics, optimiser, logged metrics and collected rounds as the uninterrupted run. This
+    run skips evaluation (eval.* may change on resume), which also shows evaluating leaves training
+    untouched."""
+    run_dir = tmp_path / "run"
+    args = [
+        "finetune",
+        f"checkpoint={bc_checkpoint}",
+        f"data_dir={data_dir}",
+        f"run_dir={run_dir}",
+        *FT,
+        "eval.episodes=0",
+    ]
+    real_update = FlowQTrainer.update
+
+    def crashing_update(self, batch):
+        if self.updates == 12:  # inside the second online round
+            raise RuntimeError("simulated crash at update 12")
+        return real_update(self, batch)
+
+    monkeypatch.setattr(FlowQTrainer, "update", crashing_update)
+    with pytest.raises(RuntimeError, match="simulated crash"):
+        main(args)
+    saved = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    assert saved["progress"] == {"offline_updates": 6, "online_round": 1, "env_steps": 40}
+    monkeypatch.setattr(FlowQTrainer, "update", real_update)
+
+    with pytest.raises(FileExistsError, match="resume=true"):
+        main(args)
+    with pytest.raises(CheckpointMismatchError, match=r"finetune\.alpha"):
+        main([*args, "resume=true", "finetune.alpha=5"])
+    assert main([*args, "resume=true"]) == 0
+    resumed = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    straight = load_checkpoint(finetuned / "checkpoints" / "latest.pt")
+    assert resumed["progress"] == straight["progress"]
+    assert _differing(resumed["model"], straight["model"]) == []
+    assert _differing(resumed["trainer"]["loss"], straight["trainer"]["loss"]) == []
+    assert _differing(resumed["buffers"], straight["buffers"]) == []  # the samplers' generators
+    assert resumed["history"]["metrics"] == straight["history"]["metrics"]
+    assert resumed["rounds"] == straight["rounds"]
+
+
+def test_a_checkpoint_of_another_task_is_refused(tmp_path, data_dir, bc_checkpoint):
+    with pytest.raises(CheckpointMismatchError, match=r"task\.env_id"):
+        main(
+            [
+                "finetune",
+                f"checkpoint={bc_checkpoint}",
+                f"data_dir={data_dir}",
+                f"run_dir={tmp_path / 'x'}",
+                "task=maniskill_pickcube",
+            ]
+        )
