@@ -10,7 +10,7 @@ import torch
 pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
 
 from l1flow_rl.cli import main
-from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_checkpoint
+from l1flow_rl.workspace.checkpoint import ResumeMismatchError, load_checkpoint
 from l1flow_rl.workspace.trainer import Trainer
 
 pytestmark = pytest.mark.maniskill
@@ -20,7 +20,7 @@ TINY = [
     "train.steps=40",
     "train.checkpoint_every=20",
     "train.batch_size=32",
-    "train.log_every=5",
+    "train.log_every=1",
     "train.warmup_steps=5",
     "train.lr=1e-3",
     "policy.down_dims=[16,32]",
@@ -61,11 +61,22 @@ def test_train_writes_checkpoints_eval_and_plots(full_run):
     assert list((full_run / "logs").rglob("*.csv")), "the CSV logger wrote nothing"
 
 
-def test_train_lowers_the_loss(full_run):
+def test_train_cuts_the_loss_by_a_stated_factor(full_run):
+    # 3 demonstrations, 40 steps at lr 1e-3: the mean loss of the last 5 steps falls below 0.65x that
+    # of the first 3 (measured 0.46-0.49x over seeds 0-2).
     history = load_checkpoint(full_run / "checkpoints" / "latest.pt")["history"]
-    assert history["step"][-1] == 40
+    assert history["step"] == list(range(1, 41))
     losses = history["loss"]
-    assert sum(losses[-3:]) / 3 < losses[0]
+    start, end = sum(losses[:3]) / 3, sum(losses[-5:]) / 5
+    assert end < 0.65 * start, f"loss {start:.4f} -> {end:.4f} ({end / start:.2f}x)"
+
+
+def test_train_run_records_its_config_and_overrides(full_run):
+    import yaml
+
+    recorded = yaml.safe_load((full_run / ".hydra" / "overrides.yaml").read_text())
+    assert "train.steps=40" in recorded and f"run_dir={full_run}" in recorded
+    assert yaml.safe_load((full_run / ".hydra" / "config.yaml").read_text())["train"]["steps"] == 40
 
 
 def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(
@@ -87,19 +98,18 @@ def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(
 
     with pytest.raises(FileExistsError, match="resume=true"):
         main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY])
-    with pytest.raises(CheckpointMismatchError, match=r"policy\.down_dims"):
-        main(
-            [
-                "train",
-                f"data_dir={data_dir}",
-                f"run_dir={run_dir}",
-                *TINY,
-                "resume=true",
-                "policy.down_dims=[16,64]",
-            ]
-        )
+    base = ["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY, "resume=true"]
+    for change, field in [
+        ("policy.down_dims=[16,64]", r"policy\.down_dims"),  # the network
+        ("train.steps=50", r"train\.steps: checkpoint has 40, config asks for 50"),  # the schedule
+        ("demos.num=4", r"demos\.num: checkpoint has 3, config asks for 4"),  # the dataset
+        ("policy.loss_kwargs.loss_type=mse", r"policy\.loss_kwargs\.loss_type"),  # the loss
+    ]:
+        with pytest.raises(ResumeMismatchError, match=field):
+            main([*base, change])
 
-    assert main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY, "resume=true"]) == 0
+    # Checkpoint cadence may change on resume; the result is still the uninterrupted run's.
+    assert main([*base, "train.checkpoint_every=10"]) == 0
     resumed = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
     straight = load_checkpoint(full_run / "checkpoints" / "latest.pt")
     assert resumed["step"] == straight["step"] == 40

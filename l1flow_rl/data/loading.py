@@ -20,19 +20,17 @@ import json
 import os
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import h5py
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import LazyMemmapStorage
 
 from l1flow_rl.data.episodes import EpisodeDataError, where
-from l1flow_rl.data.formats.base import EpisodeFile, open_h5
-from l1flow_rl.data.formats.dp_zarr import DiffusionPolicyZarr
-from l1flow_rl.data.formats.lerobot import LeRobotDirectory, is_raw_lerobot, is_torchrl_lerobot
-from l1flow_rl.data.formats.maniskill import ManiSkillFile
-from l1flow_rl.data.formats.robomimic import RobomimicFile
 from l1flow_rl.data.metadata import EpisodeMetadata, attach_metadata, episodes_metadata, strip_metadata
+
+if TYPE_CHECKING:
+    from l1flow_rl.data.formats.base import EpisodeFile
 
 __all__ = ["episodes_metadata", "load_episodes", "open_episode_file"]
 
@@ -48,6 +46,21 @@ def _is_zarr(path: Path) -> bool:
 
 def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
     """The reader for ``path``'s format, opened. Errors name the file and what was expected."""
+    # The readers import h5py, which only the app extra installs: imported when a file is opened, so
+    # that a core install imports the data layer.
+    try:
+        import h5py
+
+        from l1flow_rl.data.formats.base import open_h5
+        from l1flow_rl.data.formats.dp_zarr import DiffusionPolicyZarr
+        from l1flow_rl.data.formats.lerobot import LeRobotDirectory, is_raw_lerobot, is_torchrl_lerobot
+        from l1flow_rl.data.formats.maniskill import ManiSkillFile
+        from l1flow_rl.data.formats.robomimic import RobomimicFile
+    except ImportError as err:
+        raise ImportError(
+            f"{path}: reading demonstration files needs {err.name}, which is not installed: "
+            "pip install 'l1flow-rl[app]'"
+        ) from err
     path = Path(path)
     if not path.exists():
         raise EpisodeDataError(f"{path}: no such file or directory")
