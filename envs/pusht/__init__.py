@@ -37,6 +37,20 @@ def pusht_observation_entries(task: TaskConfig) -> Mapping[NestedKey, int]:
     return {"observation": 1}
 
 
+def pusht_reader_options(task: TaskConfig) -> Mapping:
+    """What selects a task's observation from a Diffusion Policy zarr file: ``task.state_keys``
+    (``keypoint``, ``agent_pos`` = ``data/state[:, :2]``, ``state``) and, for the image tasks, the
+    images (``task.cameras``, default ``img``)."""
+    options = {"state_keys": list(task.state_keys) or ["state"]}
+    if task.obs_mode in ("pixels", "pixels_agent_pos"):
+        options["image_key"] = (list(task.cameras) or ["img"])[0]
+        if task.obs_mode == "pixels":
+            options["state_keys"] = []
+    else:
+        options["image_key"] = None
+    return options
+
+
 def make_pusht_env(
     task: TaskConfig,
     num_envs: int,
@@ -76,6 +90,8 @@ SIMULATOR = register_simulator(
         requires=("gym_pusht", "pymunk", "pygame"),
         obs_modes=PUSHT_OBS_MODES,
         options=("backend", "mp_start_method"),
+        env_keys=(),
+        reader_options=pusht_reader_options,
         # Diffusion Policy's PushT metric: an episode's score is its best clip(coverage / 0.95, 0, 1)
         episode_metrics={"score": ("max", "reward"), "max_coverage": ("max", "coverage")},
     )
