@@ -7,6 +7,7 @@ import torch
 pytest.importorskip("mani_skill")
 
 from l1flow_rl.envs import ManiSkillAsyncEnv, make_env
+from l1flow_rl.envs.contract import check_env_contract
 from l1flow_rl.envs.per_env import render_frames, seeded_reset, sim_error_messages
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
@@ -153,3 +154,8 @@ def test_chunk_executor_replans_every_action_steps_and_after_resets(state2):
     td = executor(seeded_reset(state2, step_mdp(state2.step(td)), [3, None]))
     assert actor.calls == [2, 1]
     assert (td["action"][:, 0] * 10).round().tolist() == [0, 3]
+
+
+@pytest.mark.parametrize("num_envs", [1, 2])
+def test_state_envs_honour_the_simulator_contract(num_envs, state1, state2):
+    check_env_contract(state1 if num_envs == 1 else state2)
