@@ -30,7 +30,10 @@ starts the same episode. Envs not reset keep their state and observation. ``rend
 reports ``"sim_error"``. Extra per-step entries (PushT's ``"coverage"``, ...) are allowed and can
 feed ``episode_metrics``. :func:`l1flow_rl.envs.per_env.seeded_reset` and the evaluator use exactly
 this. The task's ``env`` block (``task.env``) reaches the factory inside ``task``; the factory reads
-and checks it.
+it (keys checked against ``SimulatorSpec.env_keys`` where the simulator lists them).
+:func:`l1flow_rl.envs.contract.check_env_contract` checks an env against all of this; a simulator
+that runs worker processes calls :func:`l1flow_rl.envs.workers.check_main_guard` before starting
+them. ``tests/doubles/point_mass`` is a complete, small example of a simulator package.
 """
 
 from __future__ import annotations
