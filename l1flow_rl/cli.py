@@ -277,9 +277,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         GlobalHydra.instance().clear()
 
 
+def _secondary_rank_overrides(overrides: Sequence[str]) -> list[str]:
+    """Under torchrun, only rank 0 keeps hydra's record and log: the others would write the same
+    files, or (default run_dir, stamped to the second) make a second, empty run directory."""
+    if int(os.environ.get("RANK", "0")) == 0:
+        return []
+    extra = ["hydra.output_subdir=null", "hydra/job_logging=none", "hydra/hydra_logging=none"]
+    if not any(o.lstrip("+").startswith(("run_dir=", "hydra.run.dir=")) for o in overrides):
+        extra.append("hydra.run.dir=.")  # unused there: rank 0 writes the run
+    return extra
+
+
 def _run(command: str, hydra: Any, hargs: Any, overrides: list[str]) -> int:
     multirun = bool(hargs.multirun)
-    overrides = [*overrides, *_run_dir_overrides(command, overrides, multirun)]
+    overrides = [
+        *overrides,
+        *_run_dir_overrides(command, overrides, multirun),
+        *_secondary_rank_overrides(overrides),
+    ]
     # Compose and validate every job before the first one starts.
     try:
         for job in _sweep_jobs(overrides) if multirun else [overrides]:
