@@ -120,29 +120,29 @@ CHECK = textwrap.dedent(
 )
 
 
-def test_core_install_imports_and_trains_without_extras(tmp_path):
-    (tmp_path / "demos.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(64))
-    proc = subprocess.run(
-        [sys.executable, "-c", HIDE_EXTRAS + CHECK],
+def _run_core(code: str, cwd) -> subprocess.CompletedProcess:
+    """``code`` in a fresh interpreter that sees only the core requirements."""
+    return subprocess.run(
+        [sys.executable, "-c", HIDE_EXTRAS + code],
         capture_output=True,
         text=True,
         timeout=300,
-        cwd=tmp_path,
+        cwd=cwd,
         env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
     )
+
+
+def test_core_install_imports_and_trains_without_extras(tmp_path):
+    (tmp_path / "demos.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(64))
+    proc = _run_core(CHECK, tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "CORE OK" in proc.stdout
 
 
 def test_core_install_composes_and_validates_the_cli_config(tmp_path):
-    check = "from l1flow_rl.cli import main\nraise SystemExit(main(['train', 'policy=ddpm', '--cfg', 'job']))"
-    proc = subprocess.run(
-        [sys.executable, "-c", HIDE_EXTRAS + check],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=tmp_path,
-        env={"OMP_NUM_THREADS": "1", "PATH": "/usr/bin:/bin"},
+    proc = _run_core(
+        "from l1flow_rl.cli import main\nraise SystemExit(main(['train', 'policy=ddpm', '--cfg', 'job']))",
+        tmp_path,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "sampler: ddpm" in proc.stdout
