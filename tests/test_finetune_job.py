@@ -172,3 +172,28 @@ def test_a_checkpoint_of_another_task_is_refused(tmp_path, data_dir, bc_checkpoi
                 "task=maniskill_pickcube",
             ]
         )
+
+
+def test_direct_mode_offline_only_keeps_the_two_step_actor(tmp_path, data_dir, bc_checkpoint):
+    run_dir = tmp_path / "direct"
+    args = [
+        "finetune",
+        f"checkpoint={bc_checkpoint}",
+        f"data_dir={data_dir}",
+        f"run_dir={run_dir}",
+        "finetune.mode=direct",
+        "finetune.alpha=2.5",
+        "finetune.batch_size=16",
+        "finetune.critic_hidden_dims=[32]",
+        "offline.steps=4",
+        "online.steps=0",
+        "eval.episodes=0",
+    ]
+    assert main(args) == 0
+    state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    assert state["progress"] == {"offline_updates": 4, "online_round": 0, "env_steps": 0}
+    assert state["online_buffer"] is None
+    actor, cfg = load_actor(run_dir / "checkpoints" / "latest.pt")
+    assert actor.sampler.nfe == 2 and cfg.policy.sampler == "two_step"
+    assert _differing(state["model"], load_checkpoint(bc_checkpoint)["ema"])
+    assert not (run_dir / "eval.json").exists()

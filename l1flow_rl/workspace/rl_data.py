@@ -95,6 +95,9 @@ class RLBuffers:
             self.online = self.offline
             self.mixed: Any = self.offline
         else:
+            # the parent asks each buffer for its share of a batch; no default size avoids TorchRL's
+            # "conflicting batch sizes" warning on every draw
+            common["batch_size"] = None
             self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
             self.online = make_chunk_buffer(None, seed=seed + 1, capacity=max(online_capacity, 1), **common)
             self.mixed = ChunkOfflineToOnlineBuffer(
@@ -103,10 +106,11 @@ class RLBuffers:
                 offline_fraction=ocfg.offline_fraction,
                 batch_size=cfg.finetune.batch_size,
             )
+        self.batch_size = int(cfg.finetune.batch_size)
         self.online_steps_stored = 0
 
     def sample_offline(self) -> TensorDictBase:
-        return self.offline.sample()
+        return self.offline.sample(self.batch_size)
 
     def sample_online(self) -> TensorDictBase:
         return self.mixed.sample()

@@ -1,0 +1,162 @@
+"""Fine-tuning data and updates without a simulator: the chunked TD target computed from real chunk
+buffers against a hand computation, offline/online mixing, and FlowQTrainer in both modes."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from l1flow_rl import L1FlowActor
+from l1flow_rl.config import AppConfig
+from l1flow_rl.data import attach_metadata
+from l1flow_rl.data.episodes import assemble_episode
+from l1flow_rl.workspace.flowq_trainer import FlowQTrainer, finetuned_policy_config
+from l1flow_rl.workspace.rl_data import RLBuffers
+
+TO, H, K, D, A = 2, 8, 4, 2, 3
+GAMMA = 0.9
+
+
+def episodes(lengths=(5, 12), terminated=(True, False), episode_offset=0):
+    """Episode e, step t: reward 1 + t; observations tagged with the episode."""
+    parts = []
+    for e, (n, term) in enumerate(zip(lengths, terminated)):
+        t = torch.arange(n + 1, dtype=torch.float32)
+        obs = torch.stack([(e + episode_offset) * 100 + t, -t], -1)
+        parts.append(
+            assemble_episode(
+                e + episode_offset,
+                obs[:n],
+                torch.rand(n, A) * 2 - 1,
+                reward=1 + torch.arange(n, dtype=torch.float32),
+                terminated=term,
+                final_observation=obs[n],
+            )
+        )
+    meta = {"source": "hand.h5", "has_rewards": True, "has_final_observation": True, "control": "absolute"}
+    return attach_metadata(torch.cat(parts), meta)
+
+
+def run_cfg(**overrides):
+    cfg = OmegaConf.structured(AppConfig)
+    cfg.policy.obs_horizon, cfg.policy.pred_horizon, cfg.policy.action_steps = TO, H, K
+    cfg.task.control = "absolute"
+    cfg.finetune.batch_size = 512
+    cfg.finetune.gamma = GAMMA
+    cfg.finetune.critic_hidden_dims = [16]
+    for key, value in overrides.items():
+        OmegaConf.update(cfg, key, value)
+    return cfg
+
+
+def bc_actor() -> L1FlowActor:
+    return L1FlowActor.for_state(
+        obs_dim=D,
+        action_dim=A,
+        obs_horizon=TO,
+        pred_horizon=H,
+        action_steps=K,
+        down_dims=(8, 16),
+        timestep_embed_dim=8,
+    )
+
+
+def test_chunk_td_target_from_the_real_buffer_by_hand():
+    """Episode 0: 5 steps, rewards 1..5, terminated; h = 3, gamma = 0.9; both critics output the
+    constant c = 2, so target = R_h + gamma^3 * c unless the chunk reaches a terminal end, and the
+    chunks at t = 3, 4 (t + h > 5) drop out of the critic loss."""
+    cfg = run_cfg(**{"finetune.rl_horizon": 3, "finetune.num_qvalue_nets": 2})
+    trainer = FlowQTrainer(bc_actor(), cfg.finetune)
+    for p in trainer.loss.qvalue_network_params.values(True, True):
+        p.data.zero_()
+    last = ("module", "mlp", str(len(trainer.loss.qvalue_network.module.mlp) - 1), "bias")
+    trainer.loss.qvalue_network_params.get(last).data.fill_(2.0)
+    for key, value in trainer.loss.qvalue_network_params.items(True, True):  # targets = the critics
+        trainer.loss.target_qvalue_network_params.get(key).data.copy_(value.data)
+    buffers = RLBuffers(cfg, episodes(), rl_horizon=3, seed=0)
+    batch = buffers.sample_offline()
+    loss = trainer.loss
+    loss.reduction = "none"
+    per_sample, _ = loss.qvalue_loss(batch)
+    for t, expected_target, valid in (
+        (0, 1 + 0.9 * 2 + 0.81 * 3 + 0.729 * 2, True),  # inside the episode: bootstraps
+        (2, 3 + 0.9 * 4 + 0.81 * 5, True),  # ends exactly at the terminal step: no bootstrap
+        (3, None, False),  # runs past the end: masked
+        (4, None, False),
+    ):
+        rows = ((batch["episode"] == 0) & (batch["step"] == t)).nonzero().squeeze(1)
+        assert rows.numel(), f"window at t={t} not drawn"
+        assert bool(batch["chunk_valid"][rows].all()) == valid
+        if valid:
+            torch.testing.assert_close(
+                per_sample[rows], torch.full_like(per_sample[rows], 2 * (2 - expected_target) ** 2)
+            )
+        else:
+            assert (per_sample[rows] == 0).all()
+    # the 12-step episode is truncated, not terminated: its last full chunk (t = 9) bootstraps
+    rows = ((batch["episode"] == 1) & (batch["step"] == 9)).nonzero().squeeze(1)
+    target = 10 + 0.9 * 11 + 0.81 * 12 + 0.729 * 2
+    torch.testing.assert_close(per_sample[rows], torch.full_like(per_sample[rows], 2 * (2 - target) ** 2))
+
+
+@pytest.mark.parametrize("mixing", ["seed", "balanced"])
+def test_online_episodes_join_the_demonstrations(mixing):
+    cfg = run_cfg(
+        **{
+            "online.mixing": mixing,
+            "online.offline_fraction": 0.25,
+            "online.steps": 40,
+            "online.frames_per_round": 20,
+        }
+    )
+    cfg.finetune.batch_size = 64
+    buffers = RLBuffers(cfg, episodes(), rl_horizon=K, seed=0)
+    offline = buffers.sample_offline()
+    assert (offline["observation"][..., 0] < 200).all()  # demonstrations only
+    online = episodes(lengths=(20, 20), terminated=(False, True), episode_offset=7)
+    stored = buffers.add_collected(online)
+    assert stored == 40 and buffers.online_steps_stored == 40
+    batch = buffers.sample_online()
+    assert batch.shape == (64,)
+    from_online = (batch["observation"][:, -1, 0] >= 700).sum()
+    if mixing == "balanced":
+        assert from_online == 48  # exactly 1 - offline_fraction of every batch
+    else:
+        assert 0 < from_online < 64  # one pool: 40 online steps beside 17 demonstration steps
+    assert torch.isfinite(batch["next", "reward"]).all() and batch["chunk_valid"].dtype == torch.bool
+
+
+@pytest.mark.parametrize("mode", ["distill", "direct"])
+def test_trainer_updates_the_actor_and_critics_and_leaves_the_bc_actor(mode):
+    torch.manual_seed(0)
+    cfg = run_cfg(**{"finetune.mode": mode, "finetune.alpha": 1.0, "finetune.batch_size": 32})
+    bc = bc_actor()
+    before = {k: v.clone() for k, v in bc.state_dict().items()}
+    trainer = FlowQTrainer(bc, cfg.finetune)
+    assert trainer.actor.sampler.nfe == (1 if mode == "distill" else 2)
+    buffers = RLBuffers(cfg, episodes(), rl_horizon=K, seed=0)
+    actor0 = {k: v.clone() for k, v in trainer.actor.state_dict().items()}
+    critic0 = trainer.loss.qvalue_network_params.clone()
+    target0 = trainer.loss.target_qvalue_network_params.clone()
+    for _ in range(3):
+        metrics = trainer.update(buffers.sample_offline())
+    assert {"loss_actor", "loss_qvalue", "q_mean", "bc_loss", "lambda", "grad_norm"} <= set(metrics)
+    assert any(not torch.equal(v, actor0[k]) for k, v in trainer.actor.state_dict().items())
+    moved = trainer.loss.qvalue_network_params.get(("module", "mlp", "0", "weight"))
+    assert not torch.equal(moved, critic0.get(("module", "mlp", "0", "weight")))
+    tgt = trainer.loss.target_qvalue_network_params.get(("module", "mlp", "0", "weight"))
+    assert not torch.equal(tgt, target0.get(("module", "mlp", "0", "weight")))  # Polyak-averaged
+    assert all(torch.equal(v, before[k]) for k, v in bc.state_dict().items())
+    assert trainer.bc_distance(buffers.sample_offline(), generator=torch.Generator().manual_seed(0)) > 0
+    policy_cfg = finetuned_policy_config(
+        {"name": "l1flow", "sampler": "two_step", "sampler_kwargs": {}}, mode
+    )
+    assert policy_cfg["sampler"] == ("euler" if mode == "distill" else "two_step")
+
+
+def test_bad_mixing_and_mode_are_named():
+    with pytest.raises(ValueError, match=r"online\.mixing='half'"):
+        RLBuffers(run_cfg(**{"online.mixing": "half"}), episodes(), rl_horizon=K, seed=0)
+    with pytest.raises(ValueError, match=r"finetune\.mode='fql'"):
+        FlowQTrainer(bc_actor(), run_cfg(**{"finetune.mode": "fql"}).finetune)
