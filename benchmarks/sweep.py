@@ -85,12 +85,17 @@ def rescore(run: Run, name: str, overrides: Sequence[str], checkpoint: str = "la
     return json.loads((out / "eval.json").read_text())
 
 
-def read_history(run: Run) -> list[dict[str, Any]]:
-    """The run's evaluations during training (step, success_once, ...), from ``history.json``."""
+def read_history(run: Run, split: str = "val") -> list[dict[str, Any]]:
+    """The run's evaluations on one seed split (the validation curve by default), one per step, from
+    ``history.json``."""
     path = run.run_dir / "history.json"
     if not path.is_file():
         return []
-    return list(json.loads(path.read_text()).get("evals", []))
+    by_step: dict[int, dict[str, Any]] = {}
+    for e in json.loads(path.read_text()).get("evals", []):
+        if e.get("split", split) == split:
+            by_step.setdefault(int(e["step"]), e)
+    return [by_step[s] for s in sorted(by_step)]
 
 
 def steps_to_fraction_of_best(curve: Sequence[tuple[int, float]], fraction: float = 0.9) -> int | None:
