@@ -57,14 +57,31 @@ def import_robosuite():
     os.environ.setdefault("MUJOCO_GL", _choose_gl())
     if os.environ["MUJOCO_GL"] in ("egl", "osmesa"):
         os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
-    # robosuite warns on every import about optional extras (private macros, robosuite_models, mink)
-    logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
+    logger = logging.getLogger("robosuite_logs")
+    if not any(isinstance(f, _RoutineNoise) for f in logger.filters):
+        logger.addFilter(_RoutineNoise())
     try:
         import robosuite
     except ImportError as err:
         raise ImportError(f"robosuite is not importable ({err}): {INSTALL_HINT}") from err
-    logging.getLogger("robosuite_logs").setLevel(logging.ERROR)
     return robosuite
+
+
+class _RoutineNoise(logging.Filter):
+    """Drops what robosuite logs on every import and env (optional extras it did not find, the
+    controller file it loaded); every other record passes."""
+
+    _ROUTINE = (
+        "private macro file",
+        "setup_macros.py",
+        "robosuite_models",
+        "mink",
+        "controller configuration",
+    )
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        return not any(text in message for text in self._ROUTINE)
 
 
 def image_key(camera: str) -> str:
