@@ -22,6 +22,7 @@ from __future__ import annotations
 import importlib
 import os
 import sys
+import textwrap
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -185,7 +186,8 @@ def _groups_help(hydra: Any, overrides: Sequence[str]) -> list[str]:
     lines = []
     for group in sorted(g for g in hydra.list_all_config_groups() if not g.startswith("hydra")):
         options = sorted(hydra.config_loader.get_group_options(group))
-        lines.append(f"  {group:<8} {', '.join(options)}   (now: {choices.get(group)})")
+        text = f"{', '.join(options)}   (now: {choices.get(group)})"
+        lines.append(textwrap.fill(text, 104, initial_indent=f"  {group:<8} ", subsequent_indent=" " * 11))
     return lines
 
 

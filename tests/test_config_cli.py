@@ -243,7 +243,8 @@ def test_command_help_lists_config_groups_and_their_options(capsys):
     out = capsys.readouterr().out
     lines = {line.split()[0]: line for line in out.splitlines() if line.startswith("  ") and line.split()}
     assert "ddim, ddpm, flow, l1flow, regression" in lines["policy"] and "(now: l1flow)" in lines["policy"]
-    assert "maniskill_pushcube" in lines["task"] and "maniskill_pickcube_rgb" in lines["task"]
+    assert lines["task"].startswith("  task     maniskill_")  # long lists wrap onto indented lines
+    assert "maniskill_pushcube," in out and "(now: maniskill_pushcube)" in out
     assert "cpu" in lines["train"] and "paper" in lines["train"]
     assert "-m" in out and "--cfg job" in out
     assert main(["train", "policy=ddpm", "--help"]) == 0  # the choices follow the command line
