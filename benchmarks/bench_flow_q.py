@@ -1,0 +1,252 @@
+"""Flow-Q fine-tuning against continued behaviour cloning, at an equal number of gradient updates.
+
+One BC checkpoint (``--demos`` demonstrations, ``--bc-steps`` L1 Flow steps) is the start of three
+arms, all on the same demonstrations, scored on the same test seeds (``eval.json`` of each run):
+
+* ``bc``: the checkpoint itself (success before fine-tuning);
+* ``flowq_offline``: ``--offline-steps`` FlowQ updates on the demonstrations' rewards;
+* ``flowq_online``: the same offline updates, then ``--online-steps`` environment steps collected by
+  the fine-tuned policy with ``--updates-per-step`` updates per step (success against environment
+  steps on the validation seeds every ``--online-eval-every`` steps);
+* ``bc_continued``: BC trained for ``--bc-steps`` + the online arm's update count, from scratch on the
+  same data with the same schedule settings: continued imitation at the same number of updates.
+
+Saved: ``benchmarks/results/flow_q_<tag>.json`` (every arm's success_once with its 95 % interval,
+wall time, updates, env steps; the online curve) and ``flow_q_<tag>.png``. Runs resume: finished
+ones are read back. On 2 CPU cores the default budget (PickCube, 10 demos, 1500 BC steps, 500 offline
+updates, 6000 env steps at 0.25 updates per step, 50 test episodes) is several hours;
+``--quick`` checks the script on tiny budgets (PushCube, 3 demos).
+
+    .venv/bin/python -m benchmarks.bench_flow_q --task maniskill_pickcube --demos 10
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from benchmarks.common import format_table, machine_info, save_results
+from benchmarks.sweep import Run, _cli, train  # _cli: the shared subprocess runner of benchmark runs
+
+
+def finetune(run: Run, data_dir: Path, checkpoint: Path) -> dict[str, Any]:
+    """Fine-tune (or resume, or just read) ``run`` from ``checkpoint``; returns its eval.json."""
+    if not run.done:
+        resume = ["resume=true"] if (run.run_dir / "checkpoints" / "latest.pt").is_file() else []
+        args = [
+            "finetune",
+            f"checkpoint={checkpoint}",
+            *run.overrides,
+            f"run_dir={run.run_dir}",
+            f"data_dir={data_dir}",
+            *resume,
+        ]
+        code = _cli(args, run.log)
+        if code != 0:
+            raise RuntimeError(f"{run.name}: l1flow-rl finetune exited with {code}; see {run.log}")
+    return json.loads((run.run_dir / "eval.json").read_text())
+
+
+def _record(result: dict[str, Any], run_dir: Path) -> dict[str, Any]:
+    summary = (
+        json.loads((run_dir / "summary.json").read_text()) if (run_dir / "summary.json").is_file() else {}
+    )
+    return {
+        "success_once": result["success_once"],
+        "ci95": result.get("ci95", {}).get("success_once"),
+        "episodes": result.get("episodes"),
+        "split": result.get("split"),
+        "updates": result.get("updates", result.get("step")),
+        "env_steps": result.get("env_steps", 0),
+        "wall_seconds": summary.get("wall_seconds"),
+    }
+
+
+def _online_curve(run_dir: Path) -> list[dict[str, Any]]:
+    path = run_dir / "history.json"
+    if not path.is_file():
+        return []
+    data = json.loads(path.read_text())
+    evals = [
+        {
+            "env_steps": e["env_steps"],
+            "success_once": e["success_once"],
+            "split": e.get("split"),
+            "phase": e["phase"],
+        }
+        for e in data.get("evals", [])
+    ]
+    collected = [
+        {"env_steps": r["env_steps"], "episode_success": r.get("episode_success")}
+        for r in data.get("rounds", [])
+    ]
+    return [{"evaluations": evals, "collected": collected}]
+
+
+def _plot(figures: dict[str, Any], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_bar, ax_curve) = plt.subplots(1, 2, figsize=(10, 3.8))
+    arms = list(figures["arms"])
+    values = [figures["arms"][a]["success_once"] for a in arms]
+    errs = []
+    for a in arms:
+        ci = figures["arms"][a].get("ci95")
+        v = figures["arms"][a]["success_once"]
+        errs.append((v - ci[0], ci[1] - v) if ci else (0.0, 0.0))
+    ax_bar.bar(
+        arms, values, yerr=list(zip(*errs)), capsize=4, color=["grey", "tab:blue", "tab:green", "tab:orange"]
+    )
+    ax_bar.set_ylim(0, 1.05)
+    ax_bar.set_ylabel("success_once (test seeds)")
+    ax_bar.tick_params(axis="x", labelrotation=15)
+    curve = figures.get("online_curve") or [{}]
+    evals = [e for e in curve[0].get("evaluations", []) if e["phase"] != "final"]
+    if evals:
+        ax_curve.plot(
+            [e["env_steps"] for e in evals], [e["success_once"] for e in evals], "o-", label="validation"
+        )
+    rounds = [r for r in curve[0].get("collected", []) if r["episode_success"] is not None]
+    if rounds:
+        ax_curve.plot(
+            [r["env_steps"] for r in rounds],
+            [r["episode_success"] for r in rounds],
+            ".--",
+            alpha=0.6,
+            label="collected",
+        )
+    ax_curve.axhline(figures["arms"]["bc"]["success_once"], color="grey", ls=":", label="BC (test)")
+    ax_curve.set_xlabel("environment steps (online)")
+    ax_curve.set_ylim(-0.05, 1.05)
+    ax_curve.grid(alpha=0.3)
+    ax_curve.legend(fontsize=8)
+    fig.suptitle(figures["setting"], fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", default="maniskill_pickcube")
+    parser.add_argument("--demos", type=int, default=10)
+    parser.add_argument("--bc-steps", type=int, default=1500)
+    parser.add_argument("--offline-steps", type=int, default=500)
+    parser.add_argument("--online-steps", type=int, default=6000)
+    parser.add_argument("--updates-per-step", type=float, default=0.25)
+    parser.add_argument("--online-eval-every", type=int, default=2000)
+    parser.add_argument("--mode", default="distill", choices=("distill", "direct"))
+    parser.add_argument("--alpha", type=float, default=100.0)
+    parser.add_argument("--batch-size", type=int, default=64)
+    parser.add_argument("--episodes", type=int, default=50, help="test (and validation) episodes")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--root", type=Path, default=Path("runs/bench_flow_q"))
+    parser.add_argument("--data-dir", type=Path, default=Path("data"))
+    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--quick", action="store_true", help="tiny budgets on PushCube (checks the script)")
+    parser.add_argument(
+        "extra", nargs="*", help="hydra overrides for every run, e.g. task.max_episode_steps=80"
+    )
+    args = parser.parse_args(argv)
+
+    shared = [f"task={args.task}", f"seed={args.seed}", f"eval.episodes={args.episodes}", *args.extra]
+    bc_over = [f"demos.num={args.demos}"]
+    ft_over = [
+        f"finetune.mode={args.mode}",
+        f"finetune.alpha={args.alpha}",
+        f"finetune.batch_size={args.batch_size}",
+        f"offline.steps={args.offline_steps}",
+    ]
+    if args.quick:
+        args.task, args.demos, args.bc_steps = "maniskill_pushcube", 3, 20
+        args.offline_steps, args.online_steps, args.online_eval_every = 4, 40, 20
+        args.updates_per_step, args.episodes = 0.1, 2
+        shared = [
+            "task=maniskill_pushcube",
+            f"seed={args.seed}",
+            "eval.episodes=2",
+            "eval.num_envs=1",
+            "task.max_episode_steps=20",
+            "policy.down_dims=[16,32]",
+            "policy.timestep_embed_dim=16",
+            *args.extra,
+        ]
+        bc_over = ["demos.num=3"]
+        ft_over = [
+            f"finetune.mode={args.mode}",
+            "finetune.batch_size=16",
+            "finetune.critic_hidden_dims=[32,32]",
+            "offline.steps=4",
+        ]
+    tag = "quick" if args.quick else f"{args.task}_{args.demos}demos_{args.mode}_seed{args.seed}"
+    root = args.root / tag
+    online_updates = args.offline_steps + round(args.updates_per_step * args.online_steps)
+    online_over = [
+        f"online.steps={args.online_steps}",
+        f"online.updates_per_step={args.updates_per_step}",
+        f"online.eval_every={args.online_eval_every}",
+        "online.num_envs=2",
+        f"online.frames_per_round={20 if args.quick else 200}",
+    ]
+
+    bc_run = Run("bc", [*bc_over, *shared, f"train.steps={args.bc_steps}"], root / "bc")
+    runs = {
+        "bc": bc_run,
+        "flowq_offline": Run("flowq_offline", [*ft_over, *shared, "online.steps=0"], root / "flowq_offline"),
+        "flowq_online": Run("flowq_online", [*ft_over, *shared, *online_over], root / "flowq_online"),
+        "bc_continued": Run(
+            "bc_continued",
+            [*bc_over, *shared, f"train.steps={args.bc_steps + online_updates}"],
+            root / "bc_continued",
+        ),
+    }
+    results: dict[str, dict[str, Any]] = {}
+    results["bc"] = _record(train(bc_run, args.data_dir), bc_run.run_dir)
+    checkpoint = bc_run.run_dir / "checkpoints" / "latest.pt"
+    for name in ("flowq_offline", "flowq_online"):
+        results[name] = _record(finetune(runs[name], args.data_dir, checkpoint), runs[name].run_dir)
+    results["bc_continued"] = _record(
+        train(runs["bc_continued"], args.data_dir), runs["bc_continued"].run_dir
+    )
+
+    setting = (
+        f"{args.task}, {args.demos} demos, BC {args.bc_steps} steps; FlowQ ({args.mode}, alpha {args.alpha}) "
+        f"{args.offline_steps} offline updates + {args.online_steps} env steps x {args.updates_per_step} "
+        f"updates/step; continued BC {args.bc_steps + online_updates} steps; {args.episodes} test episodes"
+    )
+    figures = {
+        "quick": args.quick,
+        "setting": setting,
+        "budget": {
+            "bc_steps": args.bc_steps,
+            "offline_updates": args.offline_steps,
+            "online_env_steps": args.online_steps,
+            "online_updates": online_updates - args.offline_steps,
+            "bc_continued_steps": args.bc_steps + online_updates,
+            "flowq_batch_size": args.batch_size,
+        },
+        "arms": results,
+        "gain_over_continued_bc": results["flowq_online"]["success_once"]
+        - results["bc_continued"]["success_once"],
+        "online_curve": _online_curve(runs["flowq_online"].run_dir),
+        "runs": {name: str(run.run_dir) for name, run in runs.items()},
+        "machine": machine_info(),
+    }
+    out = args.out or Path("benchmarks/results") / f"flow_q_{tag}.json"
+    save_results(out, figures)
+    _plot(figures, out.with_suffix(".png"))
+    rows = [{"arm": name, **{k: v for k, v in r.items() if k != "ci95"}} for name, r in results.items()]
+    print(setting)
+    print(format_table(rows, ["arm", "success_once", "episodes", "updates", "env_steps", "wall_seconds"]))
+    print(f"gain of online FlowQ over continued BC: {figures['gain_over_continued_bc']:+.3f}; saved {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
