@@ -160,3 +160,23 @@ def test_bad_mixing_and_mode_are_named():
         RLBuffers(run_cfg(**{"online.mixing": "half"}), episodes(), rl_horizon=K, seed=0)
     with pytest.raises(ValueError, match=r"finetune\.mode='fql'"):
         FlowQTrainer(bc_actor(), run_cfg(**{"finetune.mode": "fql"}).finetune)
+
+
+def test_bad_finetune_settings_fail_at_config_time(capsys):
+    from l1flow_rl.cli import main
+
+    code = main(
+        [
+            "finetune",
+            "checkpoint=missing.pt",
+            "finetune.mode=fql",
+            "online.mixing=half",
+            "online.steps=100",
+            "online.num_envs=3",
+            "online.frames_per_round=10",
+        ]
+    )
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "finetune.mode='fql': expected one of ['direct', 'distill']" in err
+    assert "online.mixing='half'" in err and "online.frames_per_round=10" in err

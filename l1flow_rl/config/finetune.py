@@ -57,3 +57,32 @@ class OnlineConfig:
     capacity: int = 0  # online steps the buffer keeps; 0: all of them
     eval_every: int = 0  # env steps; 0: evaluate only at the end
     env_seed: int = 100_000  # the first collection episode's seed (evaluation uses eval.seed onward)
+
+
+def _check_online(cfg, command: str) -> list[str]:
+    """Online settings that would otherwise fail only after the offline phase."""
+    on = cfg.get("online")
+    if command != "finetune" or on is None or on.steps <= 0:
+        return []
+    problems = []
+    if on.num_envs < 1 or on.frames_per_round < 1 or on.frames_per_round % on.num_envs:
+        problems.append(
+            f"online.frames_per_round={on.frames_per_round} must be a positive multiple of "
+            f"online.num_envs={on.num_envs} (every env steps as often per round)"
+        )
+    if not 0.0 < on.offline_fraction < 1.0:
+        problems.append(f"online.offline_fraction={on.offline_fraction}: expected a value in (0, 1)")
+    return problems
+
+
+def _register_choices() -> None:
+    from l1flow_rl.config.validate import register_check, register_choices
+
+    register_choices("finetune.mode", lambda: FINETUNE_MODES)
+    register_choices("finetune.q_agg", lambda: ("mean", "min"))
+    register_choices("finetune.one_step_init", lambda: ("teacher", "scratch"))
+    register_choices("online.mixing", lambda: ("seed", "balanced"))
+    register_check(_check_online)
+
+
+_register_choices()  # a bad value fails at config time, naming the field (l1flow_rl.config.validate)
