@@ -365,3 +365,14 @@ def test_bad_construction_and_input_are_named():
         loss.qvalue_loss(batch().exclude(("next", "reward")))
     with pytest.raises(ValueError, match="action_chunk"):
         loss.actor_loss(batch().set("action_chunk", torch.zeros(B, H + 1, A)))
+
+
+@pytest.mark.parametrize(
+    "name", ["l1flow_rl.objectives.flow_q", "l1flow_rl.networks.critic", "l1flow_rl.networks.one_step"]
+)
+def test_docstring_examples_run(name):
+    import doctest
+    import importlib
+
+    result = doctest.testmod(importlib.import_module(name), optionflags=doctest.ELLIPSIS)
+    assert result.attempted > 0 and result.failed == 0
