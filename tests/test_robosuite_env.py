@@ -150,3 +150,29 @@ def test_absolute_actions_are_world_frame_targets():
     for _ in range(40):
         raw, _ = sim.step(env, action)
     np.testing.assert_allclose(raw["robot0_eef_pos"], target, atol=0.01)
+
+
+@pytest.mark.parametrize(
+    ("task_name", "state_dim", "action_dim"),
+    [("robosuite_square", 23, 7), ("robosuite_toolhang", 53, 7), ("robosuite_transport", 59, 14)],
+)
+def test_user_file_tasks_build_with_robomimic_widths(task_name, state_dim, action_dim):
+    from l1flow_rl.data.formats.robomimic import expected_action_dim
+
+    env = RobosuiteEnv(load_task_config(task_name, max_episode_steps=2), render=False)
+    assert env.observation_spec["observation"].shape == (state_dim,)
+    assert env.action_spec.shape == (action_dim,)
+    # what the robomimic reader expects of a file recorded with these env_args
+    assert expected_action_dim(env.env_args) == action_dim
+    assert env.rollout(3)["next", "truncated"][-1]
+    env.close()
+
+
+def test_delta_control_is_bounded_and_passes_check_env_specs():
+    task = dataclasses.replace(load_task_config("robosuite_lift", max_episode_steps=3), control="delta")
+    env = RobosuiteEnv(task, render=False)
+    arm = env.env_args["env_kwargs"]["controller_configs"]["body_parts"]["right"]
+    assert arm["input_type"] == "delta"
+    assert float(env.action_spec.space.low.min()) == -1.0 and float(env.action_spec.space.high.max()) == 1.0
+    check_env_specs(env, seed=0)
+    env.close()
