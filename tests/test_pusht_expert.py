@@ -1,0 +1,130 @@
+"""The PushT expert on the real simulator: it solves the task going around either side, its zarr
+store has Diffusion Policy's layout, and a stored episode replays to the same coverage."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from l1flow_rl.envs.pusht import pusht_reader_options
+from l1flow_rl.envs.pusht.geometry import block_keypoints, reset_state_for
+
+from l1flow_rl.config import load_task_config
+from l1flow_rl.data import EpisodeDataError, load_episodes
+from l1flow_rl.experts import ensure_demos
+from l1flow_rl.experts.pusht.demos import SIDE_CODES, run_episodes
+
+pytest.importorskip("gym_pusht", reason="needs gym-pusht: pip install 'l1flow-rl[pusht]'")
+zarr = pytest.importorskip("zarr")
+pytestmark = pytest.mark.pusht
+
+#: five seeds whose episodes choose a side freely, both ways (benchmarks/results/pusht_expert.json:
+#: 3 and 9 go right, 14, 17 and 28 left; all short)
+SEEDS = [3, 9, 14, 17, 28]
+
+
+@pytest.fixture(scope="module")
+def demos():
+    return {seed: demo for seed, demo, _ in run_episodes(SEEDS, workers=1, progress=False)}
+
+
+def test_expert_succeeds_on_most_seeds_on_both_sides(demos):
+    assert sum(d is not None and d.success for d in demos.values()) >= 4
+    sides = {d.side for d in demos.values() if d is not None and d.success}
+    assert {"left", "right"} <= sides, sides
+    for d in demos.values():
+        assert d.score == pytest.approx(float(d.arrays["reward"].max()))
+        assert d.steps <= 300
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    data_dir = tmp_path_factory.mktemp("pusht_demos")
+    return ensure_demos(load_task_config("pusht"), 2, data_dir, seed=14, workers=1, progress=False)
+
+
+def test_zarr_store_has_diffusion_policys_layout(store):
+    root = zarr.open_group(str(store), mode="r")
+    ends = root["meta/episode_ends"][:]
+    n = int(ends[-1])
+    assert ends.dtype == np.int64 and len(ends) == 2
+    assert root["data/action"].shape == (n, 2) and root["data/action"].dtype == np.float32
+    assert root["data/state"].shape == (n, 5) and root["data/state"].dtype == np.float32
+    assert root["data/keypoint"].shape == (n, 9, 2)
+    assert root["data/n_contacts"].shape == (n, 1)
+    assert root["data/reward"].shape == (n,)
+    np.testing.assert_allclose(root["data/keypoint"][:], block_keypoints(root["data/state"][:]), atol=1e-3)
+    assert set(root["meta/side"][:]) <= set(SIDE_CODES.values())
+    assert root["meta/terminated"][:].all()
+    # again: the cache is reused, not regenerated
+    before = store.stat().st_mtime_ns
+    assert ensure_demos(load_task_config("pusht"), 2, store.parent.parent, seed=14) == store
+    assert store.stat().st_mtime_ns == before
+
+
+def test_episodes_read_back_as_the_task_observes_them(store):
+    root = zarr.open_group(str(store), mode="r")
+    eps = load_episodes(store, **pusht_reader_options(load_task_config("pusht")))
+    state = root["data/state"][:]
+    want = np.concatenate([root["data/keypoint"][:].reshape(-1, 18), state[:, :2]], axis=1)
+    np.testing.assert_allclose(eps["observation"].numpy(), want)
+    np.testing.assert_allclose(eps["next", "reward"].numpy()[:, 0], root["data/reward"][:])
+    assert eps["next", "terminated"].sum() == 2 and eps["next", "done"].sum() == 2
+    state_eps = load_episodes(store, **pusht_reader_options(load_task_config("pusht_state")))
+    np.testing.assert_allclose(state_eps["observation"].numpy(), state)
+
+
+def test_replaying_stored_actions_from_the_stored_first_state_reproduces_coverage(store):
+    import gymnasium as gym
+
+    root = zarr.open_group(str(store), mode="r")
+    ends = root["meta/episode_ends"][:]
+    starts = np.concatenate([[0], ends[:-1]])
+    env = gym.make("gym_pusht/PushT-v0", obs_type="state", disable_env_checker=True)
+    for start, end in zip(starts, ends):
+        obs, _ = env.reset(
+            options={"reset_to_state": reset_state_for(root["data/state"][start].astype(float))}
+        )
+        np.testing.assert_array_equal(obs.astype(np.float32), root["data/state"][start])
+        rewards, coverage = [], 0.0
+        for action in root["data/action"][start:end]:
+            obs, reward, _, _, info = env.step(action.astype(np.float64))
+            rewards.append(reward)
+            coverage = max(coverage, info["coverage"])
+        np.testing.assert_array_equal(np.float32(rewards), root["data/reward"][start:end])
+        assert coverage > 0.95
+
+
+def _copy_store(src, dst):
+    import shutil
+
+    shutil.copytree(src, dst)
+    return zarr.open_group(str(dst), mode="r+")
+
+
+def test_malformed_zarr_gets_a_clear_error(store, tmp_path):
+    import shutil
+
+    options = pusht_reader_options(load_task_config("pusht"))
+    missing = tmp_path / "missing.zarr"
+    _copy_store(store, missing)
+    shutil.rmtree(missing / "meta" / "episode_ends")
+    with pytest.raises(EpisodeDataError, match="meta/episode_ends"):
+        load_episodes(missing, **options)
+
+    short = tmp_path / "short.zarr"
+    root = _copy_store(store, short)
+    ends = root["meta/episode_ends"][:]
+    root["meta/episode_ends"][-1] = ends[-1] + 5  # more rows claimed than the arrays hold
+    with pytest.raises(EpisodeDataError, match=r"rows but meta/episode_ends ends at"):
+        load_episodes(short, **options)
+
+    nan = tmp_path / "nan.zarr"
+    root = _copy_store(store, nan)
+    row = int(ends[0]) + 3  # episode 1, step 3
+    values = root["data/action"][:]
+    values[row, 1] = np.nan
+    root["data/action"][:] = values
+    with pytest.raises(
+        EpisodeDataError, match=r"episode 1: key 'data/action': contains NaN or Inf \(first at step 3\)"
+    ):
+        load_episodes(nan, **options)
