@@ -17,6 +17,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import os
+import pkgutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,7 +35,13 @@ __all__ = [
     "registered_experts",
 ]
 
-BUILTIN_EXPERTS: tuple[str, ...] = ("maniskill", "robosuite", "pusht")
+
+def builtin_experts() -> list[str]:
+    """The expert packages under ``l1flow_rl.experts`` (found on disk, so adding one edits nothing
+    here); a package elsewhere registers itself on import (``register_expert`` is public)."""
+    import l1flow_rl.experts as experts
+
+    return sorted(m.name for m in pkgutil.iter_modules(experts.__path__) if m.ispkg)
 
 
 class DemoGenerationError(RuntimeError):
@@ -78,7 +85,7 @@ def unregister_expert(simulator: str) -> None:
 
 
 def _load_builtins() -> None:
-    for name in BUILTIN_EXPERTS:
+    for name in builtin_experts():
         if name not in _REGISTRY and importlib.util.find_spec(f"l1flow_rl.experts.{name}") is not None:
             importlib.import_module(f"l1flow_rl.experts.{name}")
 
