@@ -19,7 +19,7 @@ from l1flow_rl.envs.robosuite.dataset import prepare_robomimic_dataset, robosuit
 from l1flow_rl.envs.robosuite.regenerate import regenerate_observations  # noqa: E402
 
 from l1flow_rl.config import load_task_config  # noqa: E402
-from l1flow_rl.data import EpisodeDataError, load_episodes  # noqa: E402
+from l1flow_rl.data import EpisodeDataError, episodes_metadata, load_episodes  # noqa: E402
 from l1flow_rl.experts.robosuite.demos import ensure_robosuite_demos  # noqa: E402
 
 #: joint accelerations depend on the last control input, which a MuJoCo state does not hold
@@ -214,3 +214,33 @@ def test_truncated_file_names_the_file(lift_file, tmp_path):
     cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
     with pytest.raises(EpisodeDataError, match=r"cut\.hdf5"):
         load_episodes(cut, **robosuite_reader_options(task))
+
+
+def test_robosuite_1_4_controller_config_is_translated(lift_file, broken):
+    """A file from robomimic's era (robosuite <= 1.4: one part config with control_delta) replays."""
+    task, _ = lift_file
+
+    def old_style(f):
+        env_args = json.loads(f["data"].attrs["env_args"])
+        arm = env_args["env_kwargs"]["controller_configs"]["body_parts"]["right"]
+        old = {k: v for k, v in arm.items() if k not in ("input_type", "input_ref_frame", "gripper")}
+        old["control_delta"] = False
+        env_args["env_kwargs"]["controller_configs"] = old
+        env_args["env_version"] = "1.4.1"
+        f["data"].attrs["env_args"] = json.dumps(env_args)
+
+    path = broken(old_style)
+    eps = load_episodes(path, **robosuite_reader_options(task))
+    meta = episodes_metadata(eps)
+    assert (meta.control, meta.control_mode) == ("absolute", "OSC_POSE")
+    with h5py.File(path, "r") as f:
+        env_args = json.loads(f["data"].attrs["env_args"])
+        demo = f["data/demo_0"]
+        states, actions, xml = demo["states"][()], demo["actions"][()], demo.attrs["model_file"]
+    env = sim.make_from_env_args(env_args)
+    arm = env.robots[0].composite_controller.part_controllers["right"]
+    assert (arm.input_type, arm.input_ref_frame) == ("absolute", "world")
+    sim.restore_state(env, states[0], xml)
+    for action in actions:
+        sim.step(env, action)
+    assert env._check_success()
