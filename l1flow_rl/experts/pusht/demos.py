@@ -29,7 +29,8 @@ def _wants_images(task) -> bool:
 def demo_path(task, num: int, data_dir: str | os.PathLike, seed: int) -> Path:
     """Where ``num`` demonstrations from ``seed`` on are cached (image demos carry ``data/img``)."""
     kind = f"img{int(task.image_size)}" if _wants_images(task) else "lowdim"
-    return Path(data_dir) / "pusht" / f"pusht_{kind}_n{num}_seed{seed}.zarr"
+    limit = "" if int(task.max_episode_steps) == 300 else f"_T{int(task.max_episode_steps)}"
+    return Path(data_dir) / "pusht" / f"pusht_{kind}_n{num}_seed{seed}{limit}.zarr"
 
 
 def _worker(seed: int, images: bool, image_size: int, max_steps: int) -> tuple[int, Demo | None, str | None]:
