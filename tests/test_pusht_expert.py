@@ -128,3 +128,49 @@ def test_malformed_zarr_gets_a_clear_error(store, tmp_path):
         EpisodeDataError, match=r"episode 1: key 'data/action': contains NaN or Inf \(first at step 3\)"
     ):
         load_episodes(nan, **options)
+
+
+def test_image_demo_matches_what_the_image_env_observes(tmp_path):
+    """Image demonstrations (pusht_image): data/img uint8 [T, 96, 96, 3], read back as the env's
+    ``rgb`` [3, 96, 96] next to the agent position; the first frame equals the env's own frame after
+    a reset to the stored first state."""
+    import torch
+    from l1flow_rl.envs.pusht.env import PushTEnv
+
+    task = load_task_config("pusht_image")
+    path = ensure_demos(task, 1, tmp_path, seed=14, workers=1, progress=False)
+    root = zarr.open_group(str(path), mode="r")
+    n = int(root["meta/episode_ends"][-1])
+    assert root["data/img"].shape == (n, 96, 96, 3) and root["data/img"].dtype == np.uint8
+    eps = load_episodes(path, **pusht_reader_options(task))
+    assert eps["observation", "rgb"].shape == (n, 3, 96, 96)
+    np.testing.assert_allclose(eps["observation", "state"].numpy(), root["data/state"][:, :2])
+    env = PushTEnv(task)
+    first = env.reset(options={"reset_to_state": reset_state_for(root["data/state"][0].astype(float))})
+    assert torch.equal(first["observation", "rgb"], eps["observation", "rgb"][0])
+
+
+def test_a_diffusion_policy_file_reads_with_the_pusht_tasks(store, tmp_path):
+    """A file as Diffusion Policy ships it (float32 images in [0, 255], no rewards, no extras)
+    reads with each PushT task's options: keypoints + agent_pos (20-D), state, image + agent_pos."""
+    root = zarr.open_group(str(store), mode="r")
+    n = int(root["meta/episode_ends"][-1])
+    dp = zarr.open_group(str(tmp_path / "pusht_cchi_like.zarr"), mode="w", zarr_format=2)
+    arrays = {
+        "action": root["data/action"][:],
+        "state": root["data/state"][:],
+        "keypoint": root["data/keypoint"][:],
+        "n_contacts": root["data/n_contacts"][:],
+        "img": np.random.default_rng(0).integers(0, 256, (n, 96, 96, 3)).astype(np.float32),
+    }
+    for key, value in arrays.items():
+        dp.create_array(f"data/{key}", shape=value.shape, dtype=value.dtype)[:] = value
+    ends = root["meta/episode_ends"][:]
+    dp.create_array("meta/episode_ends", shape=ends.shape, dtype=ends.dtype)[:] = ends
+    path = tmp_path / "pusht_cchi_like.zarr"
+    low = load_episodes(path, **pusht_reader_options(load_task_config("pusht")))
+    assert low["observation"].shape == (n, 20)
+    assert not low["next", "reward"].any()  # no rewards in Diffusion Policy's files
+    image = load_episodes(path, **pusht_reader_options(load_task_config("pusht_image")))
+    np.testing.assert_array_equal(image["observation", "rgb"][0].permute(1, 2, 0).numpy(), arrays["img"][0])
+    assert image["observation", "state"].shape == (n, 2)
