@@ -168,3 +168,33 @@ def test_ema_copies_buffers_such_as_normalisers():
     torch.testing.assert_close(averaged.scale, actor.policy.action_normalizer.scale)
     assert averaged.mode_id.dtype == torch.long and averaged.mode == "limits"
     assert math.isclose(float(averaged.offset[0]), float(actor.policy.action_normalizer.offset[0]))
+
+
+def test_ema_decay_is_read_on_the_host_and_its_counter_stays_on_the_cpu():
+    torch.manual_seed(0)
+    model = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.Linear(4, 2))
+    ema = make_ema(model)
+    reference = _DiffusionPolicyEMA(model.parameters())
+    decays = []
+    for _ in range(5):
+        decays.append(ema.decay())
+        ema.update_parameters(model)
+    reference.optimization_step = 0
+    expected = []
+    for _ in range(5):
+        expected.append(reference.decay())
+        reference.optimization_step += 1
+    assert decays == expected and decays[:2] == [0.0, 0.0] and decays[2] == pytest.approx(1 - 2**-0.75)
+    # Moving or casting the EMA leaves its step counter a CPU integer (the host reads it each update).
+    ema.to(torch.float64)
+    model.to(torch.float64)
+    assert ema.module[0].weight.dtype == torch.float64
+    assert ema.n_averaged.device.type == "cpu" and ema.n_averaged.dtype == torch.long
+    ema.update_parameters(model)
+    assert int(ema.n_averaged) == 6
+    # The counter travels in the state_dict and sets the next decay after loading.
+    fresh = make_ema(model)
+    fresh.load_state_dict(ema.state_dict())
+    assert fresh.decay() == ema.decay() == pytest.approx(dp_ema_decay(5))
+    with pytest.raises(ValueError, match="holds 4 parameters but the model passed has 2"):
+        ema.update_parameters(torch.nn.Linear(3, 4).double())

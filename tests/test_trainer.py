@@ -152,3 +152,104 @@ def test_ddp_two_processes_on_gloo_stay_in_sync(tmp_path):
     assert result["init_gap"] > 0  # the replicas were built differently...
     assert result["max_replica_gap"] == 0.0  # ...and DDP made and kept them identical
     assert result["moved"] > 0  # while training actually changed the weights
+
+
+# -- the step without host synchronisations computes what the step with them computed ----------------
+
+
+def _dp_decay(k: int, power: float = 0.75, max_value: float = 0.9999) -> float:
+    """Diffusion Policy's EMAModel decay for its k-th update (k = 0, 1, ...), written out here."""
+    s = max(0, k - 1)
+    return 0.0 if s <= 0 else max(0.0, min(1 - (1 + s) ** -power, max_value))
+
+
+def _reference_run(actor: L1FlowActor, data: TensorDict, steps: int, grad_clip: float, ema_blend):
+    """The step as it was before the host-sync removal: float() reads every step, clip_grad_norm_
+    with an infinite bound when not clipping, and a per-parameter EMA loop."""
+    loss_fn = L1FlowLoss(actor)
+    params = [p for p in actor.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(params, lr=3e-3, betas=(0.95, 0.999), weight_decay=1e-6)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, warmup_cosine(5, steps))
+    ema = [p.detach().clone() for p in actor.parameters()]
+    losses, norms = [], []
+    for k in range(steps):
+        out = loss_fn(data)
+        loss = sum(v for key, v in out.items() if key.startswith("loss_"))
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        norm = torch.nn.utils.clip_grad_norm_(
+            actor.parameters(), grad_clip if grad_clip > 0 else float("inf")
+        )
+        opt.step()
+        sched.step()
+        with torch.no_grad():
+            decay = _dp_decay(k)
+            ema = [ema_blend(e, p.detach(), decay) for e, p in zip(ema, actor.parameters())]
+        losses.append(float(loss.detach()))
+        norms.append(float(norm))
+    return losses, norms, ema
+
+
+@pytest.mark.parametrize("grad_clip", [0.0, 0.05])
+def test_step_without_host_syncs_matches_the_old_step(grad_clip):
+    # 30 steps through the warm-up and into the cosine; grad_clip 0.05 clips on most steps.
+    steps, data = 30, _batch(32, seed=3)
+    torch.manual_seed(0)
+    initial = _actor()
+    ref_actor, ref_actor_lerp = copy.deepcopy(initial), copy.deepcopy(initial)
+
+    torch.manual_seed(7)  # the loss draws t and noise from the global generator: same draws in each run
+    trainer = _trainer(steps=steps, actor=initial, grad_clip=grad_clip, check_values=False)
+    metrics = [trainer.train_step(data) for _ in range(steps)]
+    assert all(isinstance(m["loss"], torch.Tensor) and m["loss"].dim() == 0 for m in metrics)
+    losses = [float(m["loss"]) for m in metrics]
+    norms = [float(m["grad_norm"]) for m in metrics]
+
+    torch.manual_seed(7)
+    old_losses, old_norms, old_ema = _reference_run(
+        ref_actor, data, steps, grad_clip, lambda e, p, d: e * d + p * (1.0 - d)
+    )
+    # Same operations on the same values: the losses, norms and live weights agree to the bit.
+    assert losses == old_losses
+    assert norms == old_norms
+    if grad_clip:
+        assert sum(n > grad_clip for n in norms) > steps // 2  # the clipping branch really ran
+    for (name, mine), theirs in zip(trainer.actor.named_parameters(), ref_actor.parameters()):
+        assert torch.equal(mine, theirs), name
+    # The EMA blends with one lerp, a + w (b - a), where the old step computed a d + b (1 - d): the
+    # two round differently in the last bit, so they agree to float32 precision, not to the bit
+    # (measured over these 30 steps: at most 3.6e-7 apart, a few float32 ulps of weights near 1).
+    new_ema = list(trainer.ema_actor.parameters())
+    for mine, theirs in zip(new_ema, old_ema, strict=True):
+        torch.testing.assert_close(mine, theirs, rtol=1e-5, atol=1e-6)
+    # A per-parameter torch.lerp with the same decays is what the one foreach call must equal exactly.
+    torch.manual_seed(7)
+    _, _, lerp_ema = _reference_run(
+        ref_actor_lerp,
+        data,
+        steps,
+        grad_clip,
+        lambda e, p, d: p.clone() if d == 0 else torch.lerp(e, p, 1 - d),
+    )
+    for mine, theirs in zip(new_ema, lerp_ema, strict=True):
+        assert torch.equal(mine, theirs)
+    assert int(trainer.ema.n_averaged) == steps
+    # the EMA lags the live weights (the decay reached 1 - 29**-0.75 = 0.92 by the last step)
+    live = torch.nn.utils.parameters_to_vector(trainer.actor.parameters())
+    assert not torch.equal(live, torch.nn.utils.parameters_to_vector(new_ema))
+
+
+def test_value_checks_guard_direct_input_and_are_skipped_only_when_asked():
+    from l1flow_rl.value_checks import value_checks_enabled
+
+    bad = _batch(8, seed=4)
+    bad["action_chunk"][3, 2, 1] = float("nan")
+    torch.manual_seed(0)
+    with pytest.raises(ValueError, match=r"'action_chunk' contains NaN or Inf \(flat batch rows \[3\]\)"):
+        _trainer().train_step(bad)  # the default: data handed over directly is checked
+    unchecked = _trainer(check_values=False)
+    metrics = unchecked.train_step(bad)  # what the train job does with loader-checked batches
+    assert math.isnan(float(metrics["loss"]))  # no check ran: the NaN went through
+    assert value_checks_enabled()  # the switch is back on after the step
+    with pytest.raises(ValueError, match="contains NaN or Inf"):
+        L1FlowLoss(_actor())(bad)

@@ -13,6 +13,7 @@ from torch import Tensor
 from torchrl.objectives import LossModule
 
 from l1flow_rl.policy import ChunkPolicy
+from l1flow_rl.value_checks import value_checks_enabled
 
 __all__ = ["ChunkLossBase"]
 
@@ -132,7 +133,7 @@ class ChunkLossBase(LossModule):
                 f"{keys.action_chunk!r} must have shape [*B, {H}, {A}] (pred_horizon, action_dim), "
                 f"got {tuple(action.shape)}"
             )
-        if not torch.isfinite(action).all():
+        if value_checks_enabled() and not torch.isfinite(action).all():
             bad = (~torch.isfinite(action)).reshape(-1, H * A).any(-1).nonzero()[:5, 0].tolist()
             raise ValueError(f"{keys.action_chunk!r} contains NaN or Inf (flat batch rows {bad})")
         batch = action.shape[:-2]

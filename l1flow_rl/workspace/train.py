@@ -149,6 +149,7 @@ def run_train(cfg: DictConfig) -> int:
         grad_clip=tcfg.grad_clip,
         amp=tcfg.amp,
         compile=tcfg.compile,
+        check_values=False,  # the loader checked every value (data.episodes.check_finite)
     )
     history: dict[str, list[float]] = {"step": [], "loss": [], "lr": []}
     evals: list[dict[str, Any]] = []
@@ -202,9 +203,12 @@ def run_train(cfg: DictConfig) -> int:
     first_step = trainer.step
     bar = tqdm(total=tcfg.steps, initial=first_step, disable=not is_main, desc="train", dynamic_ncols=True)
 
-    def after_step(step: int, metrics: dict[str, float]) -> None:
+    def after_step(step: int, step_metrics: dict[str, Any]) -> None:
         nonlocal best
         if step % tcfg.log_every == 0 or step == tcfg.steps:
+            # The step's metrics stay on the device until here: reading them waits for it, so
+            # they are read only on the steps that log.
+            metrics = {k: float(v) for k, v in step_metrics.items()}
             rate = (step - first_step) / max(time.perf_counter() - t_train, 1e-9)
             bar.set_postfix(loss=f"{metrics['loss']:.4f}", lr=f"{metrics['lr']:.2e}", it_s=f"{rate:.1f}")
             history["step"].append(step)

@@ -1,5 +1,10 @@
 """One optimisation step, as Diffusion Policy trains: AdamW, warm-up + cosine LR, EMA, optional
-gradient clipping, AMP and torch.compile, and DDP when launched under ``torchrun``."""
+gradient clipping, AMP and torch.compile, and DDP when launched under ``torchrun``.
+
+A step never waits for the device: its metrics come back as tensors (read them when you log), the
+EMA's decay is computed on the host, and with ``check_values=False`` the loss skips the NaN/Inf
+checks that would read the batch back (for batches whose values the data loader already checked).
+"""
 
 from __future__ import annotations
 
@@ -16,6 +21,7 @@ from torchrl.objectives import LossModule
 
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.ema import make_ema
+from l1flow_rl.value_checks import skip_value_checks
 
 __all__ = ["Trainer", "warmup_cosine"]
 
@@ -56,6 +62,9 @@ class Trainer:
         actor: the trained actor; its normalisers must already be fitted (the EMA copies them).
         loss_fn: a loss built on ``actor``.
         total_steps: length of the cosine schedule.
+        check_values: run the loss's NaN/Inf checks on each batch. They read values back from the
+            device (a host synchronisation per check); turn them off for batches from a buffer of
+            episodes the loader checked, as ``l1flow-rl train`` does.
     """
 
     def __init__(
@@ -72,13 +81,19 @@ class Trainer:
         grad_clip: float = 0.0,
         amp: bool = False,
         compile: bool = False,
+        check_values: bool = True,
     ) -> None:
         self.actor, self.loss_fn = actor, loss_fn
-        self.grad_clip, self.amp = grad_clip, amp
+        self.grad_clip, self.amp, self.check_values = grad_clip, amp, check_values
         if compile:
             actor.policy.net.compile()  # in place: the state_dict keys stay the same
         params = [p for p in actor.parameters() if p.requires_grad]
-        self.optimizer = torch.optim.AdamW(params, lr=lr, betas=tuple(betas), weight_decay=weight_decay)
+        # The fused kernel (one launch for all parameters) where it is the fast path; elsewhere
+        # torch's default, so CPU runs stay bit-for-bit what they were.
+        fused = True if params and params[0].device.type == "cuda" else None
+        self.optimizer = torch.optim.AdamW(
+            params, lr=lr, betas=tuple(betas), weight_decay=weight_decay, fused=fused
+        )
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(
             self.optimizer, warmup_cosine(warmup_steps, total_steps)
         )
@@ -92,26 +107,36 @@ class Trainer:
     def ema_actor(self) -> L1FlowActor:
         return self.ema.module  # type: ignore[return-value]
 
-    def train_step(self, batch: TensorDictBase) -> dict[str, float]:
+    def train_step(self, batch: TensorDictBase) -> dict[str, Tensor | float]:
+        """One update on ``batch``; returns its metrics without waiting for the device.
+
+        ``loss``, ``grad_norm`` (before clipping) and the loss's scalar diagnostics are detached
+        0-dim tensors on the training device, ``lr`` (the scheduler's rate after this step) a float: call
+        ``float()`` on them only when they are logged, since each read waits for the device.
+        """
         device_type = next(self.actor.parameters()).device.type
         autocast = torch.autocast(device_type, dtype=torch.bfloat16) if self.amp else contextlib.nullcontext()
-        with autocast:
+        checks = contextlib.nullcontext() if self.check_values else skip_value_checks()
+        with autocast, checks:
             loss, diagnostics = self._forward(batch)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        grad_norm = torch.nn.utils.clip_grad_norm_(
-            self.actor.parameters(), self.grad_clip if self.grad_clip > 0 else float("inf")
-        )
+        if self.grad_clip > 0:
+            grad_norm = torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.grad_clip)
+        else:  # the norm only: scaling every gradient by 1.0 would be a wasted pass
+            grads = [p.grad for p in self.actor.parameters() if p.grad is not None]
+            grad_norm = torch.nn.utils.get_total_norm(grads)
         self.optimizer.step()
         self.scheduler.step()
+        lr = self.scheduler.get_last_lr()[0]  # the rate of the next step, as logged before
         self.ema.update_parameters(self.actor)
         self.step += 1
-        metrics = {
-            "loss": float(loss.detach()),
-            "lr": self.scheduler.get_last_lr()[0],
-            "grad_norm": float(grad_norm),
+        metrics: dict[str, Tensor | float] = {
+            "loss": loss.detach(),
+            "lr": lr,
+            "grad_norm": grad_norm.detach(),
         }
-        metrics.update({k: float(v) for k, v in diagnostics.items() if v.numel() == 1})
+        metrics.update({k: v.detach() for k, v in diagnostics.items() if v.numel() == 1})
         return metrics
 
     def state_dict(self) -> dict[str, Any]:
