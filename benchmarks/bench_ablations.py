@@ -74,6 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.quick:
         args.steps, args.eval_episodes, args.demos = 4, 1, 2
+        args.extra = [*args.extra, "task.max_episode_steps=16"]
     root = Path(args.root) / args.task
     common = [
         f"task={args.task}",
@@ -95,7 +96,10 @@ def main(argv: list[str] | None = None) -> int:
         if name == "default":
             default_runs = runs
     for name, overrides in SAMPLER_VARIANTS.items():
-        evals = [rescore(r, name, [*overrides, f"eval.episodes={args.eval_episodes}"]) for r in default_runs]
+        task = [o for o in args.extra if o.startswith("task.")]  # re-scoring must see the same task
+        evals = [
+            rescore(r, name, [*overrides, f"eval.episodes={args.eval_episodes}", *task]) for r in default_runs
+        ]
         results[name] = {"kind": "sampler", "options": overrides, "evals": evals}
     for block in results.values():
         evals = block.pop("evals")

@@ -41,6 +41,11 @@ POLICIES = ("l1flow", "flow", "ddpm", "regression")
 RESCORES = {"ddim16": (("ddpm",), ["policy.sampler=ddim", "policy.sampler_kwargs.steps=16"])}
 
 
+def _task_overrides(extra: list[str]) -> list[str]:
+    """The task fields among the sweep's overrides, which re-scoring must see too."""
+    return [o for o in extra if o.startswith("task.")]
+
+
 def _plot(results: dict[str, Any], path: Path) -> None:
     import matplotlib
 
@@ -90,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.quick:
         args.steps, args.eval_every, args.eval_episodes, args.demos = 4, 2, 1, 2
+        args.extra = [*args.extra, "task.max_episode_steps=16"]
     root = Path(args.root)
     tag = args.tag or "_".join(t.replace("maniskill_", "") for t in args.tasks)
     results: dict[str, Any] = {}
@@ -117,13 +123,18 @@ def main(argv: list[str] | None = None) -> int:
             evaluations: dict[str, list[dict[str, Any]]] = {policy: [train(r, root / "data") for r in runs]}
             for name, (policies, overrides) in RESCORES.items():
                 if policy in policies:
-                    extra = [f"eval.episodes={args.eval_episodes}"]
+                    extra = [f"eval.episodes={args.eval_episodes}", *_task_overrides(args.extra)]
                     evaluations[f"{policy}_{name}"] = [rescore(r, name, [*overrides, *extra]) for r in runs]
             if args.maniskill_protocol:
                 for label in list(evaluations):
                     sampler = RESCORES.get(label.removeprefix(f"{policy}_"), ((), []))[1]
                     evaluations[f"{label}_maniskill_protocol"] = [
-                        rescore(r, f"{label}_maniskill", [*sampler, "eval.protocol=maniskill"]) for r in runs
+                        rescore(
+                            r,
+                            f"{label}_maniskill",
+                            [*sampler, "eval.protocol=maniskill", *_task_overrides(args.extra)],
+                        )
+                        for r in runs
                     ]
             curves = [[(e["step"], e["success_once"]) for e in read_history(r)] for r in runs]
             for label, evals in evaluations.items():

@@ -82,3 +82,34 @@ def test_report_builds_the_readme_section_from_saved_results_only(tmp_path):
     assert f"| l1flow_2nfe | 2 | {ms:.3g} |" in text  # the number comes from the file
     assert "`somebody_new.json`" in text  # a file without a renderer is named, not dropped
     assert report.main(["--readme", str(readme), "--results", str(results), "--check"]) == 0
+
+
+@pytest.mark.slow
+@pytest.mark.maniskill
+def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
+    from benchmarks import bench_success
+
+    argv = ["--quick", "--policies", "ddpm", "--seeds", "0", "--root", str(tmp_path)]
+    assert bench_success.main(argv) == 0
+    figures = json.loads((tmp_path / "success_pushcube_quick.json").read_text())
+    block = figures["tasks"]["maniskill_pushcube"]
+    assert set(block) == {"ddpm", "ddpm_ddim16"}
+    assert block["ddpm"]["per_seed"][0]["nfe_per_chunk"] == 100.0
+    assert block["ddpm_ddim16"]["per_seed"][0]["nfe_per_chunk"] == 16.0  # the same network, re-scored
+    assert [step for step, _ in block["ddpm"]["curves"][0]] == [2, 4]  # validation curve, one point a step
+    assert (tmp_path / "success_pushcube_quick.png").stat().st_size > 5_000
+    # a second call reads the finished runs back instead of training again
+    assert bench_success.main(argv) == 0
+
+
+@pytest.mark.slow
+@pytest.mark.maniskill
+def test_ablations_quick_mode_covers_every_variant(tmp_path):
+    from benchmarks import bench_ablations
+
+    assert bench_ablations.main(["--quick", "--seeds", "0", "--root", str(tmp_path)]) == 0
+    figures = json.loads((tmp_path / "ablations_maniskill_pushcube_quick.json").read_text())
+    variants = figures["variants"]
+    assert set(variants) == set(bench_ablations.LOSS_VARIANTS) | set(bench_ablations.SAMPLER_VARIANTS)
+    nfe = {name: v["per_seed"][0]["nfe_per_chunk"] for name, v in variants.items()}
+    assert nfe["euler5"] == 5.0 and nfe["t_first_0.3"] == 2.0 and nfe["default"] == 2.0
