@@ -21,9 +21,11 @@ __all__ = ["BACKENDS", "INSTALL_HINT", "make_pusht_env", "pusht_observation_entr
 
 INSTALL_HINT = "pip install 'l1flow-rl[pusht]' (or: pip install gym-pusht==0.1.8)"
 
-#: how make_env runs several PushT envs: worker processes (``parallel``) or one after another in
-#: this process (``serial``, the cheaper for the fast state modes: 1000+ steps/s per env)
-BACKENDS = ("parallel", "serial")
+#: how make_env runs several PushT envs: worker processes (``parallel``), one after another in this
+#: process (``serial``), or ``auto``: serial for the low-dim modes, whose 1000+ steps/s per env make
+#: TorchRL's inter-process overhead the bottleneck (benchmarks/bench_pusht_env.py: 2 envs serial
+#: 0.30x raw gym-pusht, parallel 0.15x, on the loaded 2-core machine), parallel for the pixel modes
+BACKENDS = ("auto", "parallel", "serial")
 
 #: TaskConfig.obs_mode values (see l1flow_rl.envs.pusht.env.OBS_MODES)
 PUSHT_OBS_MODES = ("state", "keypoints", "environment_state_agent_pos", "pixels", "pixels_agent_pos")
@@ -59,14 +61,14 @@ def make_pusht_env(
     ignore_terminations: bool = True,
     render: bool = True,
     camera: str | None = None,
-    backend: str = "parallel",
+    backend: str = "auto",
     mp_start_method: str = "spawn",
 ) -> EnvBase:
     """PushT envs of batch ``[num_envs]``: one :class:`~l1flow_rl.envs.pusht.env.PushTEnv` per worker
     process (``backend="parallel"``, a single env stays in this process) or all in this process
-    (``"serial"``). The simulator runs on the CPU; outputs move to ``device``. Workers are spawned:
-    forked ones hung at their first reset here (a script that makes them needs the ``__main__``
-    guard)."""
+    (``"serial"``); ``"auto"`` picks serial for low-dim observations and parallel for pixels. The
+    simulator runs on the CPU; outputs move to ``device``. Workers are spawned: forked ones hung at
+    their first reset here (a script that makes them needs the ``__main__`` guard)."""
     from l1flow_rl.envs.pusht.env import PushTEnv
 
     if backend not in BACKENDS:
@@ -74,6 +76,8 @@ def make_pusht_env(
     make = functools.partial(
         PushTEnv, task, ignore_terminations=ignore_terminations, render=render, camera=camera
     )
+    if backend == "auto":
+        backend = "parallel" if task.obs_mode in ("pixels", "pixels_agent_pos") else "serial"
     if backend == "serial" or num_envs == 1:
         env = SerialEnv(num_envs, make, device=device)
     else:

@@ -1,0 +1,83 @@
+"""PushT env throughput: the TorchRL adapter against raw gym-pusht measured in the same run.
+
+Steps per second for raw ``gym.make("gym_pusht/PushT-v0")`` (the baseline), the adapter in process
+(``PushTEnv``, 1 env), ``make_env`` with ``backend=serial`` (2 envs in process) and with worker
+processes (``backend=parallel``, 2 envs), for the keypoints and pixels_agent_pos observations.
+Prints and saves ``benchmarks/results/pusht_env.json``.
+
+    python benchmarks/bench_pusht_env.py --steps 600
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+
+def raw_rate(obs_type: str, steps: int) -> float:
+    import gym_pusht  # noqa: F401
+    import gymnasium as gym
+
+    env = gym.make("gym_pusht/PushT-v0", obs_type=obs_type, disable_env_checker=True)
+    env.reset(seed=0)
+    rng = np.random.default_rng(0)
+    start = time.perf_counter()
+    for _ in range(steps):
+        _, _, term, trunc, _ = env.step(rng.uniform(100, 400, 2))
+        if term or trunc:
+            env.reset()
+    return steps / (time.perf_counter() - start)
+
+
+def torchrl_rate(env, steps: int) -> float:
+    from torchrl.envs.utils import step_mdp
+
+    n = int(env.batch_size[0]) if env.batch_size else 1
+    td = env.reset()
+    gen = torch.Generator().manual_seed(0)
+    start = time.perf_counter()
+    for _ in range(steps // n):
+        td["action"] = torch.rand(*env.batch_size, 2, generator=gen) * 300 + 100
+        td = step_mdp(env.step(td))
+        if td["done"].any():
+            td = env.reset(td.set("_reset", td["done"].clone()))
+    return (steps // n) * n / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=600)
+    parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "pusht_env.json"))
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+    from l1flow_rl.envs import make_env
+    from l1flow_rl.envs.pusht.env import PushTEnv
+
+    from l1flow_rl.config import load_task_config
+
+    result = {"steps": args.steps, "loadavg_before": os.getloadavg(), "cpu_count": os.cpu_count()}
+    for task, obs_type in (("pusht", "state"), ("pusht_image", "pixels_agent_pos")):
+        rows = {"raw_gym_pusht": raw_rate(obs_type, args.steps)}
+        rows["adapter_1env"] = torchrl_rate(PushTEnv(load_task_config(task)), args.steps)
+        for backend in ("serial", "parallel"):
+            env = make_env(task, num_envs=2, backend=backend)
+            torchrl_rate(env, 20)  # workers started and warm
+            rows[f"make_env_2envs_{backend}"] = torchrl_rate(env, args.steps)
+            env.close()
+        base = rows["raw_gym_pusht"]
+        result[task] = {"steps_per_s": rows, "ratio_to_raw": {k: v / base for k, v in rows.items()}}
+        print(task, json.dumps(result[task], indent=1), flush=True)
+    result["loadavg_after"] = os.getloadavg()
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()
