@@ -29,7 +29,7 @@ def _num(value: Any, digits: int = 3) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "–"
     if isinstance(value, float):
-        return f"{value:.{digits}g}"
+        return f"{value:,.0f}" if abs(value) >= 1000 else f"{value:.{digits}g}"
     return str(value)
 
 
@@ -158,8 +158,12 @@ def build_section(results: Path = RESULTS) -> str:
             data = json.loads(path.read_text())
             if isinstance(data, dict) and data.get("quick"):
                 continue
+            try:
+                body = render(data)
+            except (KeyError, TypeError, ValueError) as err:  # an older layout of the file
+                body = f"Not rendered: an older layout of this file ({err!r}); re-run its script."
             parts += [f"#### {title} (`{path.as_posix()}`)", "", f"Machine: {_machine(data)}.", ""]
-            parts += [render(data), ""]
+            parts += [body, ""]
     rendered = {p.name for p in files for pat, _, _ in RENDERERS if re.fullmatch(pat, p.name)}
     unrendered = [p.name for p in files if p.name not in rendered]
     if unrendered:
