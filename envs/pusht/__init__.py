@@ -81,7 +81,12 @@ def make_pusht_env(
     if backend == "serial" or num_envs == 1:
         env = SerialEnv(num_envs, make, device=device)
     else:
-        env = ParallelEnv(num_envs, make, mp_start_method=mp_start_method, device=device)
+        from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
+
+        what = f"PushT with num_envs={num_envs} in worker processes ({task.name!r})"
+        check_main_guard(what)  # spawned workers re-import the main script
+        with explain_worker_start_failure(what):
+            env = ParallelEnv(num_envs, make, mp_start_method=mp_start_method, device=device)
     return env
 
 
