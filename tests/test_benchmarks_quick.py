@@ -113,3 +113,30 @@ def test_ablations_quick_mode_covers_every_variant(tmp_path):
     assert set(variants) == set(bench_ablations.LOSS_VARIANTS) | set(bench_ablations.SAMPLER_VARIANTS)
     nfe = {name: v["per_seed"][0]["nfe_per_chunk"] for name, v in variants.items()}
     assert nfe["euler5"] == 5.0 and nfe["t_first_0.3"] == 2.0 and nfe["default"] == 2.0
+
+
+def test_train_throughput_quick_mode_times_every_arm_and_cuda_latency_refuses_without_cuda(tmp_path, capsys):
+    import torch
+
+    from benchmarks import bench_latency_cuda, bench_train_throughput
+
+    out = tmp_path / "train_throughput.json"
+    argv = ["--quick", "--device", "cpu", "--compile", "off", "--out", str(out)]
+    assert bench_train_throughput.main(argv) == 0
+    figures = json.loads(out.read_text())
+    assert figures["quick"] is True and figures["machine"]["device"] == "cpu"
+    assert set(figures["networks"]) == {"state", "image"}
+    assert figures["networks"]["image"]["encoder"] == "resnet18_gn"
+    for block in figures["networks"].values():
+        assert set(block["settings"]) == {"fp32_eager", "bf16_eager"}
+        for r in block["settings"].values():
+            assert set(r["step_ms"]) == {"trainer", "trainer_resident", "model"}
+            assert all(v["wall_ms"] > 0 for v in r["step_ms"].values())
+            ms = {arm: v["wall_ms"] for arm, v in r["step_ms"].items()}
+            assert r["trainer_over_model"] == pytest.approx(ms["model"] / ms["trainer"], rel=1e-2)
+    if not torch.cuda.is_available():
+        with pytest.raises(SystemExit) as exit_info:
+            bench_latency_cuda.main(["--quick", "--out", str(tmp_path / "latency_cuda.json")])
+        assert exit_info.value.code == 2
+        assert "needs a CUDA GPU" in capsys.readouterr().err
+        assert not (tmp_path / "latency_cuda.json").exists()

@@ -1,0 +1,169 @@
+"""CUDA only: ManiSkill's physx_cuda backend through make_env (specs, partial resets), a training step
+and the captured-latency benchmark on the GPU. Skipped as a whole where torch sees no CUDA device."""
+
+import json
+
+import pytest
+import torch
+
+if not torch.cuda.is_available():
+    pytest.skip("needs a CUDA device (torch sees none)", allow_module_level=True)
+
+from l1flow_rl.envs import make_env
+from l1flow_rl.envs.per_env import num_parallel_envs, seeded_reset
+from tensordict import TensorDict
+from torchrl.envs.utils import check_env_specs, step_mdp
+
+from l1flow_rl import L1FlowActor, L1FlowLoss, dp_ema_decay
+from l1flow_rl.workspace.trainer import Trainer
+
+N, STEPS = 8, 6  # parallel envs in one physx_cuda scene; max_episode_steps
+STATE_DIM, RGB_STATE_DIM, IMAGE = 35, 25, 64
+
+
+@pytest.fixture(scope="module")
+def gpu_state_env():
+    pytest.importorskip("mani_skill")
+    env = make_env("maniskill_pushcube", num_envs=N, device="cuda", max_episode_steps=STEPS)
+    yield env
+    env.close()
+
+
+@pytest.mark.maniskill
+def test_physx_cuda_state_env_passes_check_env_specs(gpu_state_env):
+    env = gpu_state_env
+    assert num_parallel_envs(env) == N and env.device.type == "cuda"
+    check_env_specs(env)
+    td = env.reset()
+    obs = td["observation"]
+    assert obs.shape == (N, 2, STATE_DIM) and obs.device.type == "cuda" and obs.dtype == torch.float32
+    assert env.action_spec.shape == (N, 4)
+    rollout = env.rollout(3)
+    assert rollout["next", "reward"].shape == (N, 3, 1) and rollout["next", "reward"].device.type == "cuda"
+    assert not rollout["next", "sim_error"].any()
+
+
+@pytest.mark.maniskill
+def test_physx_cuda_rgb_env_passes_check_env_specs():
+    pytest.importorskip("mani_skill")
+    env = make_env(
+        "maniskill_pushcube", num_envs=N, device="cuda", obs_mode="rgb", image_size=IMAGE, max_episode_steps=4
+    )
+    try:
+        check_env_specs(env)
+        obs = env.rollout(3)["next", "observation"]
+        assert obs["state"].shape == (N, 3, 2, RGB_STATE_DIM) and obs["state"].device.type == "cuda"
+        assert obs["rgb"].shape == (N, 3, 2, 3, IMAGE, IMAGE) and obs["rgb"].dtype == torch.uint8
+        assert obs["rgb"].float().std() > 0  # a rendered camera image, not a blank buffer
+        assert not torch.equal(obs["rgb"][0, -1, 1], obs["rgb"][1, -1, 1])  # each env its own scene
+    finally:
+        env.close()
+
+
+@pytest.mark.maniskill
+def test_physx_cuda_partial_reset_leaves_the_other_envs_running(gpu_state_env):
+    env = gpu_state_env
+    td = seeded_reset(env, None, list(range(100, 100 + N)))
+    for _ in range(3):
+        td = step_mdp(env.rand_step(td))
+    before = td["observation"].clone()
+    chosen = [2, 5]
+    seeds = [1000 + i if i in chosen else None for i in range(N)]
+    td = seeded_reset(env, td, seeds)
+    others = [i for i in range(N) if i not in chosen]
+    assert td["is_init"].squeeze(-1).tolist() == [i in chosen for i in range(N)]
+    assert torch.equal(td["observation"][others], before[others])  # not reset: exactly where they were
+    after = td["observation"][chosen]
+    assert not torch.equal(after, before[chosen])
+    assert torch.equal(after[:, 0], after[:, 1])  # a new episode: history padded with its first frame
+    # Each env keeps its own step count: the others reach the time limit 3 steps later, the reset ones not.
+    for _ in range(STEPS - 3):
+        td = env.rand_step(td)
+        flags = td["next", "truncated"].squeeze(-1)
+        td = step_mdp(td)
+    assert flags[others].all() and not flags[chosen].any()
+
+
+@pytest.mark.maniskill
+def test_physx_cuda_same_seeds_same_start(gpu_state_env):
+    # Per-slot seeding on physx_cuda follows ManiSkill: a full reset with the same seed list
+    # starts the same episodes.
+    first = seeded_reset(gpu_state_env, None, list(range(N)))["observation"].clone()
+    again = seeded_reset(gpu_state_env, None, list(range(N)))["observation"]
+    assert torch.equal(first, again)
+    assert len({tuple(row.tolist()) for row in first[:, -1]}) > 1  # the envs start apart
+
+
+def test_trainer_step_on_cuda_updates_weights_and_ema_without_host_syncs():
+    torch.manual_seed(0)
+    device = torch.device("cuda")
+    actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64), timestep_embed_dim=16).to(
+        device
+    )
+    trainer = Trainer(actor, L1FlowLoss(actor), total_steps=20, lr=1e-3, warmup_steps=0, check_values=False)
+    assert trainer.optimizer.param_groups[0]["fused"]  # the one-kernel AdamW on CUDA
+    batch = TensorDict(
+        {"observation": torch.randn(64, 2, 5), "action_chunk": torch.rand(64, 16, 2) * 2 - 1}, [64]
+    ).to(device)
+
+    def live() -> torch.Tensor:
+        return torch.nn.utils.parameters_to_vector(actor.parameters()).detach().clone()
+
+    trainer.train_step(batch)  # the first update copies the weights; lazy CUDA set-up happens here
+    torch.cuda.synchronize()
+    torch.cuda.set_sync_debug_mode("error")  # any host synchronisation inside the steps raises
+    try:
+        metrics, weights = [], []
+        for _ in range(3):
+            metrics.append(trainer.train_step(batch))
+            weights.append(live())
+    finally:
+        torch.cuda.set_sync_debug_mode("default")
+    assert all(m["loss"].device.type == "cuda" for m in metrics)
+    assert all(torch.isfinite(torch.stack([m["loss"], m["grad_norm"]])).all() for m in metrics)
+    assert not torch.equal(weights[0], weights[-1])  # the weights moved
+    # Updates 2-4 of the EMA: a copy (decay 0), then blends with Diffusion Policy's decays 1 - 2**-0.75
+    # and 1 - 3**-0.75.
+    d1, d2 = dp_ema_decay(1), dp_ema_decay(2)
+    expected = torch.lerp(torch.lerp(weights[0], weights[1], 1 - d1), weights[2], 1 - d2)
+    ema = torch.nn.utils.parameters_to_vector(trainer.ema_actor.parameters())
+    torch.testing.assert_close(ema, expected)
+    assert not torch.equal(ema, weights[2])
+    assert int(trainer.ema.n_averaged) == 4 and trainer.ema.n_averaged.device.type == "cpu"
+
+
+@pytest.mark.parametrize("amp", [False, True])
+def test_trainer_bf16_autocast_step_on_cuda(amp):
+    torch.manual_seed(0)
+    actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64), timestep_embed_dim=16).cuda()
+    trainer = Trainer(actor, L1FlowLoss(actor), total_steps=10, lr=1e-3, warmup_steps=0, amp=amp)
+    batch = TensorDict(
+        {"observation": torch.randn(32, 2, 5), "action_chunk": torch.rand(32, 16, 2) * 2 - 1}, [32]
+    ).cuda()
+    losses = [float(trainer.train_step(batch)["loss"]) for _ in range(5)]
+    assert all(torch.isfinite(torch.tensor(losses)))
+
+
+def test_captured_latency_benchmark_runs_and_matches_eager(tmp_path):
+    from benchmarks import bench_latency_cuda
+
+    out = tmp_path / "latency_cuda.json"
+    assert bench_latency_cuda.main(["--quick", "--no-peers", "--out", str(out)]) == 0
+    figures = json.loads(out.read_text())
+    for block in figures["networks"].values():
+        assert {"l1flow_2nfe", "l1flow_2nfe_cuda_graph", "floor_2_unet"} <= set(block["ms"])
+    # The graph computes what the eager call computes: same weights, zero noise -> the same chunk.
+    actor = bench_latency_cuda.build_state_actor("l1flow_2nfe", torch.device("cuda"))
+    obs = bench_latency_cuda.observation("state", torch.device("cuda"))
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        captured = bench_latency_cuda.CapturedActor(actor, obs)
+        with torch.no_grad():
+            eager = actor(obs.clone())["action_chunk"]
+        torch.testing.assert_close(captured(obs).clone(), eager)
+        new_obs = obs.clone()
+        new_obs["observation"] += 1.0
+        with torch.no_grad():
+            eager_new = actor(new_obs.clone())["action_chunk"]
+        torch.testing.assert_close(captured(new_obs).clone(), eager_new)  # the graph reads the new input
