@@ -6,6 +6,12 @@ stored state (after loading the demo's ``model_file``), read robomimic's observa
 cameras rendered), and play the last action for the final ``next_obs``. Demos are spread over
 worker processes, with a progress bar.
 
+Every ``obs`` row and all ``next_obs`` rows but the last equal what the env produced when it
+recorded them (observations are a function of the MuJoCo state here, see
+:func:`l1flow_rl.envs.robosuite.sim.step`), except ``robot0_joint_acc``, which depends on the last
+control input. The final ``next_obs`` row is close, not equal (about 1 cm for a moving arm): the
+controllers' internal state (e.g. the gripper's ramped command) is not part of a stored state.
+
     python -m l1flow_rl.envs.robosuite.regenerate IN.hdf5 OUT.hdf5 --cameras agentview robot0_eye_in_hand
 """
 

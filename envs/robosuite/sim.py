@@ -251,11 +251,13 @@ def make_from_env_args(
     kwargs["has_offscreen_renderer"] = bool(kwargs.get("use_camera_obs")) or render
     kwargs["ignore_done"] = True
     try:
-        return suite.make(name, **kwargs)
+        env = suite.make(name, **kwargs)
     except TypeError as err:
         raise ValueError(
             f"{source}: robosuite.make({name!r}) refused the recorded env_kwargs: {err}"
         ) from err
+    _fresh_kinematics(env)
+    return env
 
 
 # -- episodes ---------------------------------------------------------------------------------------
@@ -269,16 +271,30 @@ def seed_episode(env, seed: int | None) -> None:
 
 
 def step(env, action: np.ndarray) -> tuple[dict, float]:
-    """``env.step(action)``, then the observation recomputed at the new state: (raw obs, reward).
+    """``env.step(action)``: (raw obs, reward); the observation is a function of the new state (see
+    :func:`_fresh_kinematics`)."""
+    raw, reward, _, _ = env.step(np.asarray(action, dtype=np.float64))
+    return raw, float(reward)
 
-    MuJoCo's step integrates positions after computing kinematics, so robosuite's own post-step
-    observation mixes new joint positions with the previous substep's body and site poses (~0.5 mm
-    apart). Recomputing after ``forward()`` makes the observation a function of the stored state
-    alone, so that observations regenerated from a file's states equal those an env produces.
+
+def _fresh_kinematics(env) -> None:
+    """Make ``env``'s observations a function of its MuJoCo state.
+
+    MuJoCo's step integrates positions after computing kinematics, so robosuite's post-step
+    observation mixes new joint positions with the previous substep's body, site and camera poses
+    (~0.5 mm apart). Recomputing kinematics (``mj_kinematics``, a few microseconds) before robosuite
+    samples its sensors fixes that, so that observations regenerated from a file's stored states
+    equal those an env produced; the dynamics are untouched (each step recomputes them anyway).
     """
-    _, reward, _, _ = env.step(np.asarray(action, dtype=np.float64))
-    env.sim.forward()
-    return env._get_observations(force_update=True), float(reward)
+    import mujoco
+
+    sample = env._update_observables
+
+    def update_observables(force: bool = False) -> None:
+        mujoco.mj_kinematics(env.sim.model._model, env.sim.data._data)
+        sample(force=force)
+
+    env._update_observables = update_observables
 
 
 def restore_state(env, state: np.ndarray, model_xml: str | None = None) -> dict:
