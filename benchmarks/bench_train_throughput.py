@@ -9,7 +9,9 @@ For each network and each setting of bf16 autocast and ``torch.compile`` (the Tr
 * ``trainer_resident``: ``Trainer.train_step`` on a batch already on the device (the buffer's cost
   is the gap to ``trainer``);
 * ``model``: the floor: encoder and UNet forward on resident tensors of the same shapes, an L1 loss,
-  backward and ``AdamW.step()``, nothing else.
+  backward and ``AdamW.step()``, nothing else;
+* ``trainer_pinned`` (CUDA only): as ``trainer``, the sample copied through pinned memory with
+  ``non_blocking=True`` (a copy from pageable memory can make the host wait for the device).
 
 Each timed call runs ``--steps-per-call`` consecutive steps and waits for the device only at its end,
 so a step that never waits for the device (no host synchronisation) can overlap the next step's
@@ -163,6 +165,10 @@ def measure(net: Network, amp: bool, compile: bool, args: argparse.Namespace) ->
         "trainer_resident": repeat(lambda: trainer.train_step(resident), k),
         "model": repeat(model_step(actor, trainer.optimizer, resident, amp), k),
     }
+    if device.type == "cuda":  # the sample copied from pinned memory, without waiting for the copy
+        arms["trainer_pinned"] = repeat(
+            lambda: trainer.train_step(buffer.sample().pin_memory().to(device, non_blocking=True)), k
+        )
     ms = interleaved(arms, rounds=args.rounds, device=device, warmup=args.warmup)
     batch = args.batch[net.name]
     per_step = {arm: {key: v / k for key, v in r.items()} for arm, r in ms.items()}
@@ -172,8 +178,8 @@ def measure(net: Network, amp: bool, compile: bool, args: argparse.Namespace) ->
         "compile": compile,
         "step_ms": {arm: {key: round(v, 3) for key, v in r.items()} for arm, r in per_step.items()},
         "samples_per_s": {arm: round(v, 2) for arm, v in rate.items()},
-        "trainer_over_model": round(rate["trainer"] / rate["model"], 3),
-        "trainer_resident_over_model": round(rate["trainer_resident"] / rate["model"], 3),
+        # samples/s of each arm over the bare update's; trainer_over_model is the goal's figure (>= 0.9)
+        **{f"{arm}_over_model": round(rate[arm] / rate["model"], 3) for arm in rate if arm != "model"},
     }
     return result
 
@@ -255,9 +261,8 @@ def main(argv: list[str] | None = None) -> int:
             for key, r in block["settings"].items()
         ]
         print(f"\n{name} network ({block['parameters']:,} parameters), batch {args.batch[name]}:")
-        print(
-            format_table(rows, ["setting", "trainer ms", "trainer_resident ms", "model ms", "trainer/model"])
-        )
+        columns = ["setting", "trainer ms", "trainer_pinned ms", "trainer_resident ms", "model ms"]
+        print(format_table(rows, [*columns, "trainer/model"]))
     print(f"\nsaved {out}")
     return 0
 
