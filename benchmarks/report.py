@@ -40,7 +40,10 @@ def _table(header: list[str], rows: list[list[Any]]) -> str:
 
 
 def _machine(d: dict) -> str:
-    m = d.get("machine")
+    m = d.get("machine") or d.get("machine_at_start")
+    if m is None and "cpu_count" in d:
+        load = d.get("loadavg_before") or d.get("loadavg_after")
+        return f"{d['cpu_count']} cores" + (f", load {load[0]:.2f}" if load else "")
     if isinstance(m, dict):
         parts = [m.get("cpu", "?"), f"{m.get('cores')} cores", f"torch threads {m.get('torch_threads')}"]
         if "load_average_1min" in m:
@@ -135,6 +138,95 @@ def render_sampler(d: dict) -> str:
     )
 
 
+def render_experts(d: dict) -> str:
+    """Scripted experts over many seeds (robosuite's rows, or PushT's single task)."""
+    if "rows" in d:
+        rows = [
+            [r["task"], r["seeds"], r["success_rate"], r["seconds_per_episode"], r["steps_per_success_mean"]]
+            for r in d["rows"]
+        ]
+        return _table(["task", "seeds", "success", "s / episode", "steps (mean)"], rows)
+    table = _table(
+        ["task", "seeds", "success", "mean score", "s / episode", "steps (mean)"],
+        [
+            [
+                "pusht",
+                d["seeds"],
+                d["success"],
+                d["mean_score"],
+                d["seconds_per_episode_mean"],
+                d["steps_mean"],
+            ]
+        ],
+    )
+    sides = ", ".join(f"{k} {v:.2f}" for k, v in d.get("side_share", {}).items())
+    return table + (f"\n\nShare of episodes per side of the block: {sides}." if sides else "")
+
+
+def render_sim_throughput(d: dict) -> str:
+    """Adapter against the raw simulator, steps/s (PushT's per-task blocks or robosuite's rows)."""
+    if "rows" in d:
+        rows = [
+            [r["setting"], r["raw_steps_per_s"], r["make_env_steps_per_s"], r["make_env_over_raw"]]
+            for r in d["rows"]
+        ]
+        return _table(["setting", "raw steps/s", "make_env steps/s", "× raw"], rows)
+    rows = []
+    for task, block in d.items():
+        if isinstance(block, dict) and "steps_per_s" in block:
+            for name, rate in block["steps_per_s"].items():
+                rows.append([task, name, rate, block["ratio_to_raw"][name]])
+    return _table(["task", "setting", "steps/s", "× raw"], rows)
+
+
+def render_image_latency(d: dict) -> str:
+    rows = [
+        [
+            batch,
+            b["ms"]["actor"]["wall_ms"],
+            b["ms"]["actor"]["cpu_ms"],
+            b["ms"]["floor"]["cpu_ms"],
+            b["actor_over_floor"],
+        ]
+        for batch, b in d["inference"].items()
+    ]
+    return _table(["batch", "actor wall ms", "actor CPU ms", "floor CPU ms", "actor / floor (wall)"], rows)
+
+
+def render_image_train(d: dict) -> str:
+    s = d["setup"]
+    return _table(
+        ["batch", "image", "samples/s from the buffer", "samples/s resident", "buffer / resident"],
+        [
+            [
+                s["batch"],
+                "×".join(map(str, s["image"])),
+                d["samples_per_s"]["buffer"],
+                d["samples_per_s"]["resident"],
+                d["buffer_over_resident"],
+            ]
+        ],
+    )
+
+
+def render_train_throughput(d: dict) -> str:
+    rows = []
+    for net, block in d["networks"].items():
+        for setting, r in block["settings"].items():
+            rows.append(
+                [
+                    net,
+                    setting,
+                    r["samples_per_s"]["trainer"],
+                    r["samples_per_s"]["model"],
+                    r["trainer_over_model"],
+                ]
+            )
+    return _table(
+        ["network", "setting", "trainer samples/s", "bare update samples/s", "trainer / bare"], rows
+    )
+
+
 #: file-name pattern -> (section title, renderer)
 RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
     (r"main_job\.json", "Main job", render_main_job),
@@ -144,6 +236,19 @@ RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
     (r"multimodal\.json", "Multi-modality (toy)", render_multimodal),
     (r"env_throughput_.*\.json", "Environment throughput", render_env_throughput),
     (r"sampler\.json", "Replay-buffer sampling", render_sampler),
+    (r"(pusht|robosuite)_experts?\.json", "Scripted experts", render_experts),
+    (
+        r"pusht_env\.json|robosuite_throughput_.*\.json",
+        "Simulator adapters against the raw simulator",
+        render_sim_throughput,
+    ),
+    (
+        r"image_latency\.json",
+        "Image policy: per-chunk latency against encoder + 2 UNet forwards",
+        render_image_latency,
+    ),
+    (r"image_train\.json", "Image policy: training from the memory-mapped buffer", render_image_train),
+    (r"train_throughput_.*\.json", "Training step against the bare update", render_train_throughput),
 ]
 
 
