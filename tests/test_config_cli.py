@@ -100,7 +100,10 @@ def test_task_configs_are_valid_and_fit_their_demos():
         ("policy.normalizer=minmax", "policy.normalizer='minmax': expected one of ['gaussian', 'identity'"),
         ("policy.obs_normalizer=x", "policy.obs_normalizer='x': expected one of"),
         ("train.logger=mlflow", "train.logger='mlflow': expected one of ['csv', 'tensorboard', 'wandb']"),
-        ("eval.protocol=robomimic", "eval.protocol='robomimic': expected one of ['default', 'maniskill'"),
+        (
+            "eval.protocol=robomimic",
+            "eval.protocol='robomimic': expected one of ['default', 'diffusion_policy', 'maniskill'",
+        ),
         ("encoder=state task=maniskill_pickcube_rgb", "encoder.name='state' reads flat vectors only"),
         ("encoder.name=vit", "encoder.name='vit': expected one of"),
         ("task.simulator=isaac", "task.simulator='isaac': expected one of ['maniskill'"),
