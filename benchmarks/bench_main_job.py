@@ -27,10 +27,18 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="benchmarks/results/main_job.json")
     parser.add_argument("--workdir", default=None, help="where data/ and run/ go (default: a temp dir)")
+    parser.add_argument(
+        "--reuse",
+        action="store_true",
+        help="report a finished run under --workdir instead of running again (wall time from its summary)",
+    )
     parser.add_argument("overrides", nargs="*", help="extra hydra overrides (default: none, the main job)")
     args = parser.parse_args()
     work = Path(args.workdir or tempfile.mkdtemp(prefix="l1flow-main-job-"))
     run_dir, data_dir = work / "run", work / "data"
+    if args.reuse:
+        summary = json.loads((run_dir / "summary.json").read_text())
+        return _report(args, run_dir, float(summary["wall_seconds"]))
     cmd = [
         sys.executable,
         "-m",
@@ -47,10 +55,14 @@ def main() -> int:
     if proc.returncode != 0:
         print(f"train exited with {proc.returncode}", file=sys.stderr)
         return proc.returncode
+    return _report(args, run_dir, wall)
+
+
+def _report(args: argparse.Namespace, run_dir: Path, wall: float) -> int:
     result = json.loads((run_dir / "eval.json").read_text())
     summary = json.loads((run_dir / "summary.json").read_text())
     figures = {
-        "machine": f"{platform.machine()} {os.cpu_count()} cores",
+        "machine": f"{platform.machine()} {os.cpu_count()} cores, load {os.getloadavg()[0]:.2f} at the end",
         "overrides": args.overrides,
         "wall_seconds": round(wall, 1),
         "budget_seconds": BUDGET_S,
@@ -60,6 +72,9 @@ def main() -> int:
         "steps": summary.get("steps"),
         "success_once": result["success_once"],
         "success_at_end": result["success_at_end"],
+        "success_once_ci95": result.get("ci95", {}).get("success_once"),
+        "eval_split": result.get("split"),
+        "eval_seeds": result.get("split_seeds"),
         "eval_episodes": result["episodes"],
         "success_over_target": round(result["success_once"] / TARGET_SUCCESS, 3),
         "chunk_latency_ms_median": result.get("latency_ms_median"),

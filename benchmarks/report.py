@@ -54,9 +54,26 @@ def _machine(d: dict) -> str:
     return str(m)
 
 
+def _interval(ci: list | None) -> str:
+    return f"[{ci[0]:.2f}, {ci[1]:.2f}]" if ci else "–"
+
+
 def render_main_job(d: dict) -> str:
+    seeds = d.get("eval_seeds") or {}
+    split = f"{d.get('eval_split', '?')} seeds from {seeds.get('first', '?')}" if seeds else "–"
     return _table(
-        ["task", "wall s", "of 15-min budget", "demos s", "train s", "steps", "success_once", "episodes"],
+        [
+            "task",
+            "wall s",
+            "of 15-min budget",
+            "demos s",
+            "train s",
+            "steps",
+            "success_once",
+            "95 % interval",
+            "episodes",
+            "seeds",
+        ],
         [
             [
                 "maniskill_pushcube (state)",
@@ -66,7 +83,9 @@ def render_main_job(d: dict) -> str:
                 d.get("train_seconds"),
                 d.get("steps"),
                 d["success_once"],
+                _interval(d.get("success_once_ci95")),
                 d["eval_episodes"],
+                split,
             ]
         ],
     )
