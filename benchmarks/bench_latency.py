@@ -92,6 +92,25 @@ def _diffusers_call(actor: L1FlowActor, scheduler, steps: int, obs: TensorDict) 
     return call
 
 
+#: Diffusion Policy's scheduler settings, which DDPMSampler/DDIMSampler reproduce
+DIFFUSERS_SCHEDULER_OPTIONS = {
+    "num_train_timesteps": 100,
+    "beta_schedule": "squaredcos_cap_v2",
+    "clip_sample": True,
+    "prediction_type": "epsilon",
+}
+
+
+def diffusers_calls(actor: L1FlowActor, obs: TensorDict) -> dict[str, Callable[[], None]]:
+    """The peers' path: DDPM-100 and DDIM-16 through diffusers' schedulers around ``actor``'s network."""
+    from diffusers import DDIMScheduler, DDPMScheduler
+
+    return {
+        "diffusers_ddpm100": _diffusers_call(actor, DDPMScheduler(**DIFFUSERS_SCHEDULER_OPTIONS), 100, obs),
+        "diffusers_ddim16": _diffusers_call(actor, DDIMScheduler(**DIFFUSERS_SCHEDULER_OPTIONS), 16, obs),
+    }
+
+
 def _floor_call(actor: L1FlowActor, obs: TensorDict) -> Callable[[], None]:
     """The encoder and 2 UNet forwards alone: what any 2-NFE policy must pay."""
     policy = actor.policy
@@ -121,16 +140,7 @@ def inference_calls(device: torch.device, batch: int, peers: bool) -> dict[str, 
 
         calls[method] = call
     if peers:
-        from diffusers import DDIMScheduler, DDPMScheduler
-
-        options = {
-            "num_train_timesteps": 100,
-            "beta_schedule": "squaredcos_cap_v2",
-            "clip_sample": True,
-            "prediction_type": "epsilon",
-        }
-        calls["diffusers_ddpm100"] = _diffusers_call(base, DDPMScheduler(**options), 100, obs)
-        calls["diffusers_ddim16"] = _diffusers_call(base, DDIMScheduler(**options), 16, obs)
+        calls.update(diffusers_calls(base, obs))
     return calls
 
 

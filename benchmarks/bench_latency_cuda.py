@@ -32,7 +32,7 @@ from tensordict import TensorDict, TensorDictBase
 if __package__ in (None, ""):  # run as a script
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.bench_latency import OBS_DIM, _diffusers_call, _floor_call
+from benchmarks.bench_latency import OBS_DIM, _floor_call, diffusers_calls
 from benchmarks.bench_latency import build_actor as build_state_actor
 from benchmarks.common import format_table, interleaved, machine_info, save_results
 from l1flow_rl.actor import L1FlowActor
@@ -131,16 +131,7 @@ def latency_calls(
     except Exception as err:  # a compile failure is a figure of its own, not a crash
         errors["l1flow_2nfe_reduce_overhead"] = f"{type(err).__name__}: {err}"[:500]
     if peers:
-        from diffusers import DDIMScheduler, DDPMScheduler
-
-        options = {
-            "num_train_timesteps": 100,
-            "beta_schedule": "squaredcos_cap_v2",
-            "clip_sample": True,
-            "prediction_type": "epsilon",
-        }
-        calls["diffusers_ddpm100"] = _diffusers_call(actor, DDPMScheduler(**options), 100, obs)
-        calls["diffusers_ddim16"] = _diffusers_call(actor, DDIMScheduler(**options), 16, obs)
+        calls.update(diffusers_calls(actor, obs))
     return calls
 
 
