@@ -246,6 +246,28 @@ def render_train_throughput(d: dict) -> str:
     )
 
 
+def render_training_runs(d: dict) -> str:
+    rows = [
+        [
+            r["task"],
+            r["policy"],
+            r["demos"],
+            r["steps"],
+            r["wall_seconds"],
+            r["success_once"],
+            _interval(r.get("success_once_ci95")),
+            r["episodes"],
+            f"{r.get('split')} from {(r.get('split_seeds') or {}).get('first')}",
+        ]
+        for r in d["runs"]
+    ]
+    table = _table(
+        ["task", "method", "demos", "steps", "wall s", "success_once", "95 % interval", "episodes", "seeds"],
+        rows,
+    )
+    return table + (f"\n\n{d['note']}" if d.get("note") else "")
+
+
 #: file-name pattern -> (section title, renderer)
 RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
     (r"main_job\.json", "Main job", render_main_job),
@@ -268,6 +290,7 @@ RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
     ),
     (r"image_train\.json", "Image policy: training from the memory-mapped buffer", render_image_train),
     (r"train_throughput_.*\.json", "Training step against the bare update", render_train_throughput),
+    (r"training_.*\.json", "Trained policies (default budget, one seed)", render_training_runs),
 ]
 
 
