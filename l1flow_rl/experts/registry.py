@@ -54,17 +54,26 @@ class ExpertSpec:
 
     Args:
         simulator: the ``TaskConfig.simulator`` it serves.
-        make: ``(task, num, data_dir, *, seed, **options) -> Path`` (see the module docstring).
+        make: ``(task, num, data_dir, *, seed, **options) -> Path`` (see the module docstring), or
+            ``"package.module:function"`` naming it, imported only when demonstrations are made.
         description: one line for ``l1flow-rl demos --help`` and error messages.
         env_ids: the env ids it can solve (empty: all of the simulator's).
         options: keyword options ``make`` accepts beyond ``seed`` (from ``demos`` and ``task.expert``).
     """
 
     simulator: str
-    make: Callable[..., Path]
+    make: Callable[..., Path] | str
     description: str
     env_ids: tuple[str, ...] = ()
     options: tuple[str, ...] = ()
+
+    def maker(self) -> Callable[..., Path]:
+        """``make`` itself, or the function a ``"package.module:function"`` string names, imported
+        now: a built-in expert imports its simulator only when demonstrations are made."""
+        if callable(self.make):
+            return self.make
+        module, _, name = self.make.partition(":")
+        return getattr(importlib.import_module(module), name)
 
     def supports(self, task: TaskConfig) -> bool:
         return not self.env_ids or task.env_id in self.env_ids
@@ -132,4 +141,4 @@ def ensure_demos(
             f"task {task.name!r}: the {spec.simulator} expert takes no option(s) {unknown} "
             f"(it takes {list(spec.options)})"
         )
-    return Path(spec.make(task, num, data_dir, seed=seed, **options))
+    return Path(spec.maker()(task, num, data_dir, seed=seed, **options))

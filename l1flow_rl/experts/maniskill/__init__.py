@@ -6,16 +6,10 @@ from l1flow_rl.experts.registry import ExpertSpec, register_expert
 __all__ = ["EXPERT"]
 
 
-def _make(task, num, data_dir, *, seed=0, **options):
-    from l1flow_rl.experts.maniskill.demos import ensure_maniskill_demos
-
-    return ensure_maniskill_demos(task, num, data_dir, seed=seed, **options)
-
-
 EXPERT = register_expert(
     ExpertSpec(
         simulator="maniskill",
-        make=_make,
+        make="l1flow_rl.experts.maniskill.demos:ensure_maniskill_demos",
         description="ManiSkill motion planning (mani_skill.examples.motionplanning), replayed with rewards",
         options=("max_consecutive_failures", "attempt_timeout", "workers", "progress"),
     )
