@@ -18,6 +18,17 @@ from l1flow_rl.value_checks import value_checks_enabled
 __all__ = ["ChunkLossBase"]
 
 
+def required_entry(td: TensorDictBase, key: NestedKey, what: str, owner: str):
+    """``td[key]``, or a KeyError that names the loss, the key, what it should hold and the keys present."""
+    value = td.get(key, default=None)
+    if value is None:
+        raise KeyError(
+            f"{owner}: the input has no {key!r} entry ({what}); present keys: "
+            f"{sorted(map(str, td.keys(True, True)))}. Use set_keys(...) to point at another key."
+        )
+    return value
+
+
 class ChunkLossBase(LossModule):
     """Base for losses that train a :class:`~l1flow_rl.actor.L1FlowActor`'s network on action chunks.
 
@@ -115,13 +126,7 @@ class ChunkLossBase(LossModule):
 
     # -- input handling -----------------------------------------------------------------------
     def _get(self, td: TensorDictBase, key: NestedKey, what: str):
-        value = td.get(key, default=None)
-        if value is None:
-            raise KeyError(
-                f"{type(self).__name__}: the input has no {key!r} entry ({what}); present keys: "
-                f"{sorted(map(str, td.keys(True, True)))}. Use set_keys(...) to point at another key."
-            )
-        return value
+        return required_entry(td, key, what, type(self).__name__)
 
     def _read_batch(self, td: TensorDictBase) -> tuple[TensorDictBase, Tensor, Tensor | None, torch.Size]:
         """Validated (flat observation TD [N, To], normalised chunk [N, H, A], valid mask [N, H] or None)."""

@@ -29,6 +29,7 @@ from torchrl.objectives import LossModule
 from torchrl.objectives.utils import ValueEstimators, _vmap_func, dispatch_value_estimator
 from torchrl.objectives.value import ValueEstimatorBase
 
+from l1flow_rl.objectives.chunk_loss import required_entry
 from l1flow_rl.objectives.l1flow import L1FlowLoss
 from l1flow_rl.policy import ChunkPolicy
 
@@ -362,13 +363,7 @@ class FlowQLoss(LossModule):
         return self.actor_network.module  # type: ignore[return-value]
 
     def _get(self, td: TensorDictBase, key: NestedKey, what: str):
-        value = td.get(key, default=None)
-        if value is None:
-            raise KeyError(
-                f"FlowQLoss: the input has no {key!r} entry ({what}); present keys: "
-                f"{sorted(map(str, td.keys(True, True)))}. Use set_keys(...) to point at another key."
-            )
-        return value
+        return required_entry(td, key, what, "FlowQLoss")
 
     def _flag(self, td: TensorDictBase, key: NestedKey, batch: tuple[int, ...], what: str) -> Tensor:
         value = self._get(td, key, what)
