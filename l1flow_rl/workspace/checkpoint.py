@@ -26,10 +26,12 @@ __all__ = [
     "ResumeMismatchError",
     "check_compatible",
     "check_resumable",
+    "get_buffer_rng",
     "get_rng_state",
     "load_actor",
     "load_checkpoint",
     "save_checkpoint",
+    "set_buffer_rng",
     "set_rng_state",
 ]
 
@@ -259,3 +261,15 @@ def set_rng_state(state: Mapping[str, Any]) -> None:
     random.setstate((py[0], tuple(py[1]), py[2]))
     if "cuda" in state and torch.cuda.is_available():
         torch.cuda.set_rng_state_all(state["cuda"])
+
+
+def get_buffer_rng(buffer) -> torch.Tensor:
+    """The state of a TorchRL replay buffer's generator (its sampler draws from it)."""
+    # TorchRL exposes set_rng but no getter; its own state_dict reads the same attribute.
+    return buffer._rng.get_state().clone()
+
+
+def set_buffer_rng(buffer, state: torch.Tensor) -> None:
+    generator = torch.Generator()
+    generator.set_state(state)
+    buffer.set_rng(generator)

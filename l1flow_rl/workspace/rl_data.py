@@ -15,10 +15,11 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from torchrl.data import OfflineToOnlineReplayBuffer, TensorDictReplayBuffer
+
+from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
 
 __all__ = ["ChunkOfflineToOnlineBuffer", "RLBuffers"]
 
@@ -45,17 +46,6 @@ class ChunkOfflineToOnlineBuffer(OfflineToOnlineReplayBuffer):
         self._online_buffer = online
 
 
-def _buffer_rng(buffer: TensorDictReplayBuffer) -> torch.Tensor:
-    # TorchRL exposes set_rng but no getter; its own state_dict reads the same attribute.
-    return buffer._rng.get_state().clone()
-
-
-def _set_buffer_rng(buffer: TensorDictReplayBuffer, state: torch.Tensor) -> None:
-    generator = torch.Generator()
-    generator.set_state(state)
-    buffer.set_rng(generator)
-
-
 class RLBuffers:
     """Demonstration and online chunk buffers of one run, with RL targets for the critic.
 
@@ -69,6 +59,7 @@ class RLBuffers:
     def __init__(self, cfg: DictConfig, episodes: TensorDictBase, rl_horizon: int, seed: int) -> None:
         from l1flow_rl.data import make_chunk_buffer
         from l1flow_rl.data.online import CORE_KEYS
+        from l1flow_rl.workspace.dataset import chunk_padding
 
         ocfg = cfg.online
         if ocfg.mixing not in MIXING:
@@ -83,7 +74,7 @@ class RLBuffers:
             obs_horizon=cfg.policy.obs_horizon,
             pred_horizon=cfg.policy.pred_horizon,
             batch_size=cfg.finetune.batch_size,
-            action_pad="delta" if cfg.task.control == "delta" else "repeat",
+            **chunk_padding(cfg, episodes),  # the BC run's rule: recorded control, data.padding
             rl_horizon=rl_horizon,
             gamma=cfg.finetune.gamma,
             keys=CORE_KEYS,  # demonstrations and online episodes share one set of entries
@@ -127,14 +118,14 @@ class RLBuffers:
     # -- checkpointing ------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         return {
-            "offline_rng": _buffer_rng(self.offline),
-            "online_rng": _buffer_rng(self.online),
+            "offline_rng": get_buffer_rng(self.offline),
+            "online_rng": get_buffer_rng(self.online),
             "online_steps_stored": self.online_steps_stored,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        _set_buffer_rng(self.offline, state["offline_rng"])
-        _set_buffer_rng(self.online, state["online_rng"])
+        set_buffer_rng(self.offline, state["offline_rng"])
+        set_buffer_rng(self.online, state["online_rng"])
         self.online_steps_stored = int(state["online_steps_stored"])
 
     def dump_online(self, directory: Path) -> None:

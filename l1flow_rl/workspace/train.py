@@ -23,10 +23,12 @@ from l1flow_rl.evaluation.evaluator import sampler_record
 from l1flow_rl.workspace.build import build_actor, build_loss
 from l1flow_rl.workspace.checkpoint import (
     check_resumable,
+    get_buffer_rng,
     get_rng_state,
     load_actor,
     load_checkpoint,
     save_checkpoint,
+    set_buffer_rng,
     set_rng_state,
 )
 from l1flow_rl.workspace.distributed import (
@@ -158,7 +160,7 @@ def run_train(cfg: DictConfig) -> int:
     if resume_state is not None:
         trainer.load_state_dict(resume_state)
         set_rng_state(resume_state["rng"])
-        _set_buffer_rng(buffer, resume_state["sampler_rng"])
+        set_buffer_rng(buffer, resume_state["sampler_rng"])
         history, evals, best = resume_state["history"], resume_state["evals"], resume_state["best"]
         logger_state = resume_state.get("logger")
 
@@ -188,7 +190,7 @@ def run_train(cfg: DictConfig) -> int:
             action_dim=action_dim,
             dataset=str(dataset),
             rng=get_rng_state(),
-            sampler_rng=_buffer_rng(buffer),
+            sampler_rng=get_buffer_rng(buffer),
             history=history,
             evals=evals,
             best=best,
@@ -290,14 +292,3 @@ def run_train(cfg: DictConfig) -> int:
 
     run_on_rank0(report, "evaluating the final model and writing the report")
     return 0
-
-
-def _buffer_rng(buffer) -> torch.Tensor:
-    # TorchRL exposes set_rng but no getter; its own state_dict reads the same attribute.
-    return buffer._rng.get_state().clone()
-
-
-def _set_buffer_rng(buffer, state: torch.Tensor) -> None:
-    generator = torch.Generator()
-    generator.set_state(state)
-    buffer.set_rng(generator)
