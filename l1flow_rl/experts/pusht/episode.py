@@ -27,6 +27,10 @@ class Demo:
     side: str  # "left" / "right": the side the planner went around the block by choice; "none"
     steps: int
     seconds: float
+    #: the first move's path to its contact: "left"/"right" around the block, "none" straight
+    first_side: str = "none"
+    #: whether that first side was a free choice (both ways viable, the episode's side decided)
+    first_chosen: bool = False
 
 
 def _make_env(images: bool, image_size: int, max_steps: int):
@@ -90,10 +94,13 @@ def run_episode(
         if images:
             rows["img"] = []
         side, coverage, done = "none", 0.0, False
+        first: tuple[str, bool] | None = None
         while not done and len(rows["action"]) < max_steps:
             move = planner.plan(_state(env), np.array(env.unwrapped.agent.velocity))
             if move is None:
                 break
+            if first is None:
+                first = (move.side or "none", move.chosen)
             if move.chosen and side == "none":
                 side = move.side
             for target in move.actions:
@@ -124,6 +131,8 @@ def run_episode(
         success = coverage > env.unwrapped.success_threshold
         score = float(np.max(arrays["reward"]))
         steps = len(arrays["action"])
-        return Demo(seed, arrays, success, score, coverage, side, steps, time.perf_counter() - start)
+        first_side, first_chosen = first if first is not None else ("none", False)
+        seconds = time.perf_counter() - start
+        return Demo(seed, arrays, success, score, coverage, side, steps, seconds, first_side, first_chosen)
     finally:
         env.close()
