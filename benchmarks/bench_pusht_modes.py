@@ -232,8 +232,9 @@ def rollout(actor, task, seeds: Sequence[int], args: argparse.Namespace, obs_hor
 
 
 def policy_routes(
-    name: str, path: Path, seeds: Sequence[int], args: argparse.Namespace
+    path: Path, seeds: Sequence[int], args: argparse.Namespace
 ) -> tuple[dict[str, Any], dict[int, np.ndarray]]:
+    """Roll the checkpoint at ``path`` out on ``seeds`` under the protocol; label each episode's route."""
     from l1flow_rl.evaluation.evaluator import sampler_record
     from l1flow_rl.evaluation.plan import task_from
     from l1flow_rl.evaluation.protocols import get_protocol
@@ -360,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
     blocks: dict[str, dict[str, Any]] = {"expert": _expert_record(expert_episodes, bimodal)}
     paths: dict[str, Mapping[int, np.ndarray]] = {"expert": expert_paths}
     for name, path in policies.items():
-        record, paths[name] = policy_routes(name, path, seeds, args)
+        record, paths[name] = policy_routes(path, seeds, args)
         blocks[name] = {**_outcome(record["per_episode"], bimodal), **record}
 
     figures: dict[str, Any] = {

@@ -18,7 +18,7 @@ pytest.importorskip("gym_pusht", reason="needs gym-pusht: pip install 'l1flow-rl
 pytestmark = pytest.mark.pusht
 
 #: Diffusion Policy test seeds where the planner's first way to the block is a free choice, one
-#: each way (benchmarks/results/pusht_modes.json: 100003 goes right, 100004 left)
+#: each way (found by running the planner on seeds 100000-100049: 100003 goes right, 100004 left)
 BIMODAL = {100003: "right", 100004: "left"}
 
 POSE = np.array([256.0, 256.0, 0.0])  # the T upright: bar on top (y 256..286), stem below it
