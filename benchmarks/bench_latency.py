@@ -136,7 +136,7 @@ def inference_calls(device: torch.device, batch: int, peers: bool) -> dict[str, 
 
         @torch.inference_mode()
         def call(actor=actor) -> None:
-            actor(obs.clone())
+            actor(obs)  # overwrites "action_chunk" in place, as an env loop would
 
         calls[method] = call
     if peers:

@@ -5,7 +5,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from tensordict.nn import TensorDictModule
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule, dispatch
 from tensordict.utils import NestedKey
 
 from l1flow_rl.flow.samplers import ChunkSampler, TwoStepSampler, make_sampler
@@ -46,6 +47,31 @@ class L1FlowActor(TensorDictModule):
         out_keys: Sequence[NestedKey] = ("action_chunk",),
     ) -> None:
         super().__init__(policy, in_keys=list(in_keys), out_keys=list(out_keys))
+
+    @dispatch(auto_batch_size=False)
+    def forward(
+        self,
+        tensordict: TensorDictBase,
+        *args: Any,
+        tensordict_out: TensorDictBase | None = None,
+        **kwargs: Any,
+    ) -> TensorDictBase:
+        """One key in, one key out. Written out because TensorDictModule's generic path wraps each
+        output with ``TensorDict.from_any``, whose import probe costs ~0.4 ms per call: 5 % of a
+        batch-1 chunk on CPU."""
+        if args:
+            raise ValueError(
+                f"{type(self).__name__} takes one TensorDict, got {len(args)} more positional arguments"
+            )
+        observation = tensordict.get(self.in_keys[0], None)
+        if observation is None:
+            raise KeyError(
+                f"{type(self).__name__} reads {self.in_keys[0]!r}, which the input lacks; it has "
+                f"{sorted(map(str, tensordict.keys(include_nested=True, leaves_only=True)))}"
+            )
+        out = tensordict if tensordict_out is None else tensordict_out
+        out.set(self.out_keys[0], self.module(observation, **kwargs))
+        return out
 
     @property
     def policy(self) -> ChunkPolicy:
