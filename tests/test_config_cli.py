@@ -31,6 +31,15 @@ def test_paper_training_preset():
     assert cfg.run_dir.startswith("runs/maniskill_pushcube_l1flow/")
 
 
+def test_a_task_brings_its_default_budget_and_the_command_line_wins():
+    default = compose_config([])
+    rgb = compose_config(["task=maniskill_pushcube_rgb"])
+    assert (rgb.train.steps, rgb.train.batch_size) == (2000, 32)  # train=cpu_rgb, the task's own budget
+    assert (default.train.steps, default.train.batch_size) == (2500, 64)
+    assert compose_config(["task=maniskill_pushcube_rgb", "train=gpu_rgb"]).train.steps == 30000
+    assert compose_config(["task=maniskill_pushcube_rgb", "train.steps=7"]).train.steps == 7
+
+
 @pytest.mark.parametrize("policy", ["l1flow", "flow", "ddpm", "ddim", "regression"])
 def test_every_policy_config_composes(policy):
     cfg = compose_config([f"policy={policy}", "train.steps=7"])

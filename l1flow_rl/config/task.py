@@ -51,5 +51,7 @@ def load_task_config(name: str, **overrides) -> TaskConfig:
     path = CONFIG_DIR / "task" / f"{name}.yaml"
     if not path.is_file():
         raise ValueError(f"unknown task {name!r}; known tasks: {task_names()}")
-    cfg = OmegaConf.merge(OmegaConf.structured(TaskConfig), OmegaConf.load(path), overrides)
+    raw = OmegaConf.load(path)
+    raw.pop("defaults", None)  # hydra's defaults list (a task's default train budget), not a task field
+    cfg = OmegaConf.merge(OmegaConf.structured(TaskConfig), raw, overrides)
     return OmegaConf.to_object(cfg)  # type: ignore[return-value]
