@@ -11,26 +11,38 @@ Saved: ``benchmarks/results/success_<tag>.json`` (per run, per method: final suc
 ``success_<tag>.png`` (success against step, mean and min-max band over seeds). The sweep resumes:
 finished runs are read back, interrupted ones continue from their last checkpoint.
 
-Budget on 2 CPU cores (state, default network, batch 64): about 5.5 training steps/s, so
-2,500 steps is ~8 minutes a run plus evaluations (~1 s per 50-episode chunk of PushCube steps);
-3 tasks x 4 methods x 3 seeds is ~2 h of training alone. ``--quick`` checks the script on tiny budgets.
+Each row also carries the protocol's headline metric (PushT under ``eval.protocol=diffusion_policy``:
+Diffusion Policy's score) and each run's budget (steps, wall and CPU seconds from its summary.json).
+
+Budget on 2 CPU cores (state, default network, batch 64): about 9 training steps/s with both cores
+(~5 on one), so 2,500 steps is ~5 minutes a run plus evaluations; 3 tasks x 4 methods x 3 seeds is
+~2 h of training alone. ``--jobs N`` trains N runs side by side with cores/N threads each (a task's
+demonstrations are made once first). ``--quick`` checks the script on tiny budgets.
 
     .venv/bin/python -m benchmarks.bench_success --tasks maniskill_pushcube --seeds 0 1 2
+    .venv/bin/python -m benchmarks.bench_success --tasks pusht --policies l1flow flow regression --seeds 0 \
+        --steps 8000 --eval-every 2000 --demos 200 --jobs 3 --tag pusht \
+        data.padding=diffusion_policy eval.protocol=diffusion_policy eval.val_episodes=20
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from benchmarks.common import format_table, machine_info, save_results
 from benchmarks.sweep import (
     Run,
+    headline_metric,
+    make_demos,
     mean_and_spread,
     read_history,
     rescore,
+    run_budget,
     seed_record,
     steps_to_fraction_of_best,
     train,
@@ -69,11 +81,29 @@ def _plot(results: dict[str, Any], path: Path) -> None:
         ax.set_xlabel("training step")
         ax.set_ylim(-0.05, 1.05)
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("success_once (validation seeds)")
+    metric = next((b["metric"] for block in results.values() for b in block.values()), "success_once")
+    axes[0][0].set_ylabel(f"{metric} (validation seeds)")
     axes[0][-1].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _train_side_by_side(grid: dict[str, dict[str, list[Run]]], args: argparse.Namespace, root: Path) -> None:
+    """Train the grid's unfinished runs ``args.jobs`` at a time; each task's demonstrations are made
+    first, once, since runs sharing a file must not make it together."""
+    for task, by_policy in grid.items():
+        first = next(iter(by_policy.values()))[0]
+        shared = [o for o in first.overrides if o.startswith(("task", "demos."))]
+        make_demos(shared, root / "data", root / task / "demos.log")
+    pending = [r for by_policy in grid.values() for runs in by_policy.values() for r in runs if not r.done]
+    threads = max(1, (os.cpu_count() or 1) // args.jobs)
+    with ThreadPoolExecutor(args.jobs) as pool:
+        failures = [
+            f for f in [pool.submit(train, r, root / "data", threads) for r in pending] if f.exception()
+        ]
+    if failures:
+        raise RuntimeError(f"{len(failures)} run(s) failed: {failures[0].exception()}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,6 +120,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--root", default="runs/bench_success", help="where the runs and data live")
     parser.add_argument("--tag", default=None, help="results name (default: the task list)")
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="runs trained side by side, each with cores/jobs torch threads (small networks use several "
+        "cores poorly, so 2-3 jobs on 2 cores finish a grid sooner; each run's CPU time is recorded)",
+    )
     parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not the claim")
     parser.add_argument("extra", nargs="*", help="hydra overrides applied to every run")
     args = parser.parse_args(argv)
@@ -98,11 +135,11 @@ def main(argv: list[str] | None = None) -> int:
         args.extra = [*args.extra, "task.max_episode_steps=16"]
     root = Path(args.root)
     tag = args.tag or "_".join(t.replace("maniskill_", "") for t in args.tasks)
-    results: dict[str, Any] = {}
+    grid: dict[str, dict[str, list[Run]]] = {}
     for task in args.tasks:
-        results[task] = {}
+        grid[task] = {}
         for policy in args.policies:
-            runs = [
+            grid[task][policy] = [
                 Run(
                     f"{task}/{policy}/seed{seed}",
                     [
@@ -120,6 +157,12 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 for seed in args.seeds
             ]
+    if args.jobs > 1:
+        _train_side_by_side(grid, args, root)
+    results: dict[str, Any] = {}
+    for task, by_policy in grid.items():
+        results[task] = {}
+        for policy, runs in by_policy.items():
             evaluations: dict[str, list[dict[str, Any]]] = {policy: [train(r, root / "data") for r in runs]}
             for name, (policies, overrides) in RESCORES.items():
                 if policy in policies:
@@ -136,12 +179,15 @@ def main(argv: list[str] | None = None) -> int:
                         )
                         for r in runs
                     ]
-            curves = [[(e["step"], e["success_once"]) for e in read_history(r)] for r in runs]
+            metric = headline_metric(evaluations[policy][0])
+            curves = [[(e["step"], e.get(metric, e["success_once"])) for e in read_history(r)] for r in runs]
             for label, evals in evaluations.items():
                 finals = [e["success_once"] for e in evals]
                 results[task][label] = {
+                    "metric": metric,
                     "success_once": mean_and_spread(finals),
-                    "per_seed": [seed_record(e) for e in evals],
+                    metric: mean_and_spread([e[metric] for e in evals]),
+                    "per_seed": [{**seed_record(e), **run_budget(r)} for e, r in zip(evals, runs)],
                     "curves": curves if label == policy else [],
                     "steps_to_90pct_of_best": [steps_to_fraction_of_best(c) for c in curves]
                     if label == policy
@@ -157,15 +203,21 @@ def main(argv: list[str] | None = None) -> int:
         {
             "task": task,
             "method": label,
+            "metric": b["metric"],
+            "mean": b[b["metric"]]["mean"],
+            "std": b[b["metric"]]["std"],
             "success_once": b["success_once"]["mean"],
-            "std": b["success_once"]["std"],
             "seeds": b["success_once"]["n"],
             "steps to 90%": ",".join(str(s) for s in b["steps_to_90pct_of_best"]) or "-",
         }
         for task, block in results.items()
         for label, b in block.items()
     ]
-    print(format_table(rows, ["task", "method", "success_once", "std", "seeds", "steps to 90%"]))
+    print(
+        format_table(
+            rows, ["task", "method", "metric", "mean", "std", "success_once", "seeds", "steps to 90%"]
+        )
+    )
     print(f"saved {out} and {out.with_suffix('.png')}")
     return 0
 

@@ -21,9 +21,12 @@ from typing import Any
 
 __all__ = [
     "Run",
+    "headline_metric",
+    "make_demos",
     "mean_and_spread",
     "read_history",
     "rescore",
+    "run_budget",
     "seed_record",
     "steps_to_fraction_of_best",
     "train",
@@ -62,15 +65,24 @@ def _cli(args: Sequence[str], log: Path, env: dict[str, str] | None = None) -> i
     return proc.returncode
 
 
-def train(run: Run, data_dir: Path) -> dict[str, Any]:
-    """Train (or resume, or just read) ``run``; returns its final eval.json."""
+def train(run: Run, data_dir: Path, threads: int | None = None) -> dict[str, Any]:
+    """Train (or resume, or just read) ``run``; returns its final eval.json. ``threads``: torch's
+    intra-op threads for the run (set when several runs share the machine)."""
     if not run.done:
         resume = ["resume=true"] if (run.run_dir / "checkpoints" / "latest.pt").is_file() else []
         args = ["train", *run.overrides, f"run_dir={run.run_dir}", f"data_dir={data_dir}", *resume]
-        code = _cli(args, run.log)
+        code = _cli(args, run.log, {"OMP_NUM_THREADS": str(threads)} if threads else None)
         if code != 0:
             raise RuntimeError(f"{run.name}: l1flow-rl train exited with {code}; see {run.log}")
     return json.loads((run.run_dir / "eval.json").read_text())
+
+
+def make_demos(overrides: Sequence[str], data_dir: Path, log: Path) -> None:
+    """Make a task's demonstrations once, before runs that share them train side by side (two runs
+    making the same file at once would race)."""
+    code = _cli(["demos", *overrides, f"data_dir={data_dir}"], log)
+    if code != 0:
+        raise RuntimeError(f"l1flow-rl demos {' '.join(overrides)} exited with {code}; see {log}")
 
 
 def rescore(run: Run, name: str, overrides: Sequence[str], checkpoint: str = "latest.pt") -> dict[str, Any]:
@@ -118,11 +130,29 @@ def mean_and_spread(values: Sequence[float]) -> dict[str, float]:
     return {"mean": mean, "std": math.sqrt(var), "min": min(values), "max": max(values), "n": n}
 
 
+def run_budget(run: Run) -> dict[str, Any]:
+    """What a finished run cost, from its summary.json: steps, wall and CPU seconds (of its last
+    invocation when it was resumed)."""
+    path = run.run_dir / "summary.json"
+    summary = json.loads(path.read_text()) if path.is_file() else {}
+    return {k: summary.get(k) for k in ("steps", "wall_seconds", "cpu_seconds")}
+
+
+def headline_metric(result: dict[str, Any]) -> str:
+    """The metric an eval.json's protocol reports first (PushT: ``score``; else ``success_once``)."""
+    return result.get("headline", {}).get("metric") or "success_once"
+
+
 def seed_record(result: dict[str, Any]) -> dict[str, Any]:
-    """What a results table keeps of one eval.json: success, its 95 % interval, the seed split."""
+    """What a results table keeps of one eval.json: success and the protocol's headline metric, their
+    95 % intervals, the seed split."""
+    metric = headline_metric(result)
     return {
         "success_once": result["success_once"],
         "ci95": result.get("ci95", {}).get("success_once"),
+        "metric": metric,
+        "value": result[metric],
+        "value_ci95": result.get("ci95", {}).get(metric),
         "episodes": result.get("episodes"),
         "split": result.get("split"),
         "nfe_per_chunk": result.get("nfe_per_chunk"),

@@ -89,11 +89,26 @@ def test_report_builds_the_readme_section_from_saved_results_only(tmp_path):
 def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
     from benchmarks import bench_success
 
-    argv = ["--quick", "--policies", "ddpm", "--seeds", "0", "--root", str(tmp_path)]
+    # two runs side by side (--jobs 2), after the shared demonstrations are made once
+    argv = [
+        "--quick",
+        "--policies",
+        "ddpm",
+        "regression",
+        "--seeds",
+        "0",
+        "--jobs",
+        "2",
+        "--root",
+        str(tmp_path),
+    ]
     assert bench_success.main(argv) == 0
     figures = json.loads((tmp_path / "success_pushcube_quick.json").read_text())
     block = figures["tasks"]["maniskill_pushcube"]
-    assert set(block) == {"ddpm", "ddpm_ddim16"}
+    assert set(block) == {"ddpm", "ddpm_ddim16", "regression"}
+    assert block["regression"]["metric"] == "success_once"  # the default protocol's headline
+    budget = block["regression"]["per_seed"][0]
+    assert budget["steps"] == 4 and budget["cpu_seconds"] > 0 and budget["wall_seconds"] > 0
     assert block["ddpm"]["per_seed"][0]["nfe_per_chunk"] == 100.0
     assert block["ddpm_ddim16"]["per_seed"][0]["nfe_per_chunk"] == 16.0  # the same network, re-scored
     assert [step for step, _ in block["ddpm"]["curves"][0]] == [2, 4]  # validation curve, one point a step

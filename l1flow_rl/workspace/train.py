@@ -11,6 +11,7 @@ import functools
 import json
 import os
 import random
+import resource
 import time
 from pathlib import Path
 from typing import Any
@@ -85,6 +86,12 @@ def _rank0_due(cfg: DictConfig, step: int) -> bool:
     t = cfg.train
     evaluates = cfg.eval.episodes > 0 and t.eval_every and step % t.eval_every == 0
     return bool(step % t.log_every == 0 or step % t.checkpoint_every == 0 or step == t.steps or evaluates)
+
+
+def _cpu_seconds() -> float:
+    """User + system CPU time of this process and its finished children (demo and env workers)."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
 
 
 def run_train(cfg: DictConfig) -> int:
@@ -284,6 +291,7 @@ def run_train(cfg: DictConfig) -> int:
                 chunk_latency_ms_median=result.get("latency_ms_median"),
             )
         summary["wall_seconds"] = round(time.perf_counter() - t_start, 1)
+        summary["cpu_seconds"] = round(_cpu_seconds(), 1)  # the budget when runs share the machine
         save_plots(history, evals, run_dir)
         save_history(history, evals, run_dir)
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
