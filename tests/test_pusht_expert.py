@@ -174,3 +174,50 @@ def test_a_diffusion_policy_file_reads_with_the_pusht_tasks(store, tmp_path):
     image = load_episodes(path, **pusht_reader_options(load_task_config("pusht_image")))
     np.testing.assert_array_equal(image["observation", "rgb"][0].permute(1, 2, 0).numpy(), arrays["img"][0])
     assert image["observation", "state"].shape == (n, 2)
+
+
+def test_ctrl_c_stops_the_demo_workers_promptly(tmp_path):
+    """SIGINT reaches the whole process group; the spawned workers ignore it and the parent ends the
+    pool, so ``l1flow-rl demos`` exits with 130 in seconds, quietly (no traceback from each worker),
+    and leaves no worker running."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    cmd = [
+        sys.executable,
+        "-m",
+        "l1flow_rl.cli",
+        "demos",
+        "task=pusht",
+        "demos.num=50",
+        f"data_dir={tmp_path}",
+    ]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        deadline = time.monotonic() + 120
+        seen = ""
+        while "episode" not in seen:  # the progress bar is up: the pool has started
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() < deadline, "no progress bar within 120 s"
+            seen += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+        time.sleep(3)  # workers are mid-episode
+        os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
+        rc = proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert rc == 130
+    rest = proc.stderr.read()
+    assert "interrupted" in rest
+    assert "Traceback" not in rest, f"the workers were interrupted mid-episode too:\n{rest[-2000:]}"
+    assert not list((tmp_path / "pusht").glob("*.zarr")), "an interrupted run must not leave a demo store"
+    time.sleep(1)
+    ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-s", str(proc.pid)], capture_output=True, text=True)
+    # zombies are not running; they wait for the container's init to reap them
+    alive = [line for line in ps.stdout.splitlines() if line.split()[1][0] != "Z"]
+    assert not alive, f"workers outlived the interrupted command: {alive}"

@@ -32,7 +32,9 @@ def run_demos(cfg: DictConfig) -> int:
         return 1
     except KeyboardInterrupt:
         print(
-            "l1flow-rl demos: interrupted; finished batches are kept, run it again to resume", file=sys.stderr
+            "l1flow-rl demos: interrupted before the demonstrations were complete; run it again (experts "
+            "that cache finished batches, like ManiSkill's, resume from them)",
+            file=sys.stderr,
         )
         return 130
     print(

@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import math
 import multiprocessing
+import multiprocessing.pool
 import os
+import signal
+import threading
 from collections.abc import Iterator, Sequence
 from functools import partial
 from pathlib import Path
@@ -40,6 +43,21 @@ def _worker(seed: int, images: bool, image_size: int, max_steps: int) -> tuple[i
         return seed, None, f"{type(err).__name__}: {err}"
 
 
+def _spawn_pool(workers: int) -> multiprocessing.pool.Pool:
+    """A spawn pool whose workers ignore SIGINT. Ctrl-C reaches the whole process group; only the
+    parent should handle it (and terminate the pool), not each worker with a traceback. Workers
+    start with the parent's ignored disposition (kept across exec, and Python leaves an ignored
+    SIGINT alone), which also covers a worker still importing when Ctrl-C comes."""
+    context = multiprocessing.get_context("spawn")
+    if threading.current_thread() is not threading.main_thread():
+        return context.Pool(workers)  # signal handlers belong to the main thread
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        return context.Pool(workers)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def run_episodes(
     seeds: Sequence[int],
     *,
@@ -64,7 +82,7 @@ def run_episodes(
             results = map(job, seeds)
             pool = None
         else:
-            pool = multiprocessing.get_context("spawn").Pool(workers)
+            pool = _spawn_pool(workers)
             results = pool.imap(job, seeds)
         for item in results:
             if bar is not None:
