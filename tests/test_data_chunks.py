@@ -10,7 +10,13 @@ from tensordict import MemoryMappedTensor, TensorDict
 from torchrl.data import TensorDictReplayBuffer
 
 from l1flow_rl import L1FlowActor
-from l1flow_rl.data import EpisodeDataError, fit_normalizers, load_episodes, make_chunk_buffer
+from l1flow_rl.data import (
+    EpisodeDataError,
+    episodes_metadata,
+    fit_normalizers,
+    load_episodes,
+    make_chunk_buffer,
+)
 
 LENGTHS = (1, 3, 7, 20, 40)  # includes episodes shorter than the obs and the prediction horizon
 
@@ -165,10 +171,9 @@ def test_storage_dir_is_reused_and_guarded(tmp_path):
     assert torch.equal(again[torch.tensor([0, 2])]["action"], steps["action"][[0, 2]])
 
 
-def test_memmapped_episodes_are_used_in_place(tmp_path):
+def _small_robomimic_file(path: Path) -> Path:
     import h5py
 
-    path = tmp_path / "robomimic.hdf5"
     with h5py.File(path, "w") as f:
         for i, n in enumerate((6, 9)):
             g = f.create_group(f"data/demo_{i}")
@@ -176,6 +181,11 @@ def test_memmapped_episodes_are_used_in_place(tmp_path):
             g["actions"] = torch.ones(n, 3).numpy() * i
             g["rewards"] = torch.zeros(n).numpy()
             g["dones"] = torch.arange(n).eq(n - 1).numpy()
+    return path
+
+
+def test_memmapped_episodes_are_used_in_place(tmp_path):
+    path = _small_robomimic_file(tmp_path / "robomimic.hdf5")
     eps = load_episodes(path, memmap_dir=tmp_path / "mm")
     assert isinstance(eps["action"], MemoryMappedTensor) and eps.shape == (15,)
     files = {p: p.stat().st_mtime_ns for p in (tmp_path / "mm").rglob("*.memmap")}
@@ -186,6 +196,46 @@ def test_memmapped_episodes_are_used_in_place(tmp_path):
     assert torch.equal(again["observation"], eps["observation"])
     with pytest.raises(EpisodeDataError, match="holds a stored copy of"):
         load_episodes(path, memmap_dir=tmp_path / "mm", state_keys=[])
+
+
+def test_runs_storing_the_same_file_at_once_share_the_first_copy(tmp_path, monkeypatch):
+    """Runs trained side by side on one data_dir store the same demonstrations at once: the one that
+    finishes second finds the first one's copy under the final name, checks it and reads it."""
+    import subprocess
+    import sys
+
+    from l1flow_rl.data import loading
+
+    path = _small_robomimic_file(tmp_path / "robomimic.hdf5")
+    target = tmp_path / "mm"
+    publish = loading.publish_dir
+
+    def another_process_finishes_first(tmp, dest):
+        code = f"import l1flow_rl.data as d; d.load_episodes({str(path)!r}, memmap_dir={str(dest)!r})"
+        subprocess.run([sys.executable, "-c", code], check=True)
+        assert (dest / loading.SOURCE_FILE).is_file()
+        return publish(tmp, dest)  # the real rename, onto the other process's copy
+
+    monkeypatch.setattr(loading, "publish_dir", another_process_finishes_first)
+    eps = load_episodes(path, memmap_dir=target)
+    files = sorted(p.name for p in tmp_path.iterdir())
+    assert files == ["mm", "robomimic.hdf5"]  # our partial copy is gone, theirs is the one
+    assert eps.shape == (15,) and torch.equal(eps["action"][6:], torch.ones(9, 3))
+    assert Path(episodes_metadata(eps).extra["memmap_dir"]) == target.resolve()
+
+
+def test_publish_dir_replaces_an_empty_target_and_yields_to_a_full_one(tmp_path):
+    from l1flow_rl.data.publish import publish_dir
+
+    ours, target = tmp_path / "ours", tmp_path / "target"
+    ours.mkdir()
+    (ours / "a").write_text("ours")
+    target.mkdir()
+    assert publish_dir(ours, target) and (target / "a").read_text() == "ours" and not ours.exists()
+    ours.mkdir()
+    (ours / "a").write_text("late")
+    assert not publish_dir(ours, target)  # someone published first: theirs stays
+    assert (target / "a").read_text() == "ours" and (ours / "a").read_text() == "late"
 
 
 @pytest.mark.parametrize("mode", ["limits", "gaussian"])

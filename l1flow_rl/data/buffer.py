@@ -21,6 +21,7 @@ from l1flow_rl.data.episodes import EpisodeDataError, episode_bounds
 from l1flow_rl.data.loading import SOURCE_FILE
 from l1flow_rl.data.metadata import EpisodeMetadata, episodes_metadata, strip_metadata
 from l1flow_rl.data.online import CORE_KEYS, EpisodeWriter
+from l1flow_rl.data.publish import publish_dir
 from l1flow_rl.data.rl_windows import next_key
 
 __all__ = ["action_pad_for", "make_chunk_buffer"]
@@ -88,9 +89,8 @@ def _open_storage(
         storage.set(range(n), episodes)
         storage.dumps(tmp)
         (tmp / SOURCE_FILE).write_text(json.dumps({"fingerprint": None, "metadata": meta.to_json()}))
-        if directory.exists():
-            directory.rmdir()
-        os.replace(tmp, directory)  # a half-written copy never carries the final name
+        if not publish_dir(tmp, directory):  # another process stored the same episodes first
+            return _open_storage(episodes, layout, storage_dir, meta)  # checks that they match
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return _reopen(directory, n, layout)

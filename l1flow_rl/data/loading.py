@@ -28,6 +28,7 @@ from torchrl.data import LazyMemmapStorage
 
 from l1flow_rl.data.episodes import EpisodeDataError, where
 from l1flow_rl.data.metadata import EpisodeMetadata, attach_metadata, episodes_metadata, strip_metadata
+from l1flow_rl.data.publish import publish_dir
 
 if TYPE_CHECKING:
     from l1flow_rl.data.formats.base import EpisodeFile
@@ -171,7 +172,8 @@ def _load_memmap(reader: EpisodeFile, options: dict, target: Path, progress: boo
         storage.dumps(tmp)
         marker_tmp = tmp / SOURCE_FILE
         marker_tmp.write_text(json.dumps({"fingerprint": fingerprint, "metadata": reader.metadata}, indent=1))
-        os.replace(tmp, target)  # the copy only appears complete
+        if not publish_dir(tmp, target):  # another process stored the same file first
+            return _load_memmap(reader, options, target, progress)  # checks its fingerprint
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return TensorDict.load_memmap(target)
