@@ -273,6 +273,33 @@ def render_training_runs(d: dict) -> str:
     return table + (f"\n\n{d['note']}" if d.get("note") else "")
 
 
+def render_pusht_modes(d: dict) -> str:
+    routes = ("left", "right", "between", "no_contact")
+    rows = []
+    for name, b in d["policies"].items():
+        bim = b["routes_bimodal"]
+        shares = [f"{_num(bim['shares'][r], 2)} ({bim['counts'][r]}/{bim['n']})" for r in routes]
+        rows.append(
+            [
+                name,
+                b["score"],
+                _interval(b["ci95"]["score"]),
+                b["success"],
+                _interval(b["ci95"]["success"]),
+                *shares,
+            ]
+        )
+    header = ["policy", "score", "95 %", "success", "95 %", *(f"{r} (bimodal seeds)" for r in routes)]
+    expert = d["policies"].get("expert", {})
+    note = (
+        f"Bimodal seeds: the {len(d['bimodal_seeds'])} test seeds where the expert's first way around the T "
+        f"was a free choice; the route rule agrees with the planner on "
+        f"{_num(expert.get('agreement_on_bimodal'), 3)} of them. `between`: the policy reached the T without "
+        "going around it (what averaging a left and a right path gives)."
+    )
+    return _table(header, rows) + "\n\n" + note
+
+
 #: file-name pattern -> (section title, renderer)
 RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
     (r"main_job\.json", "Main job", render_main_job),
@@ -280,6 +307,7 @@ RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
     (r"success_.*\.json", "Success and convergence", render_success),
     (r"ablations_.*\.json", "Ablations", render_ablations),
     (r"multimodal\.json", "Multi-modality (toy)", render_multimodal),
+    (r"pusht_modes\.json", "Multi-modality on PushT: which way around the T", render_pusht_modes),
     (r"env_throughput_.*\.json", "Environment throughput", render_env_throughput),
     (r"sampler\.json", "Replay-buffer sampling", render_sampler),
     (r"(pusht|robosuite)_experts?\.json", "Scripted experts", render_experts),
