@@ -129,10 +129,16 @@ def render_success(d: dict) -> str:
             s, m = b["success_once"], b.get(metric, b["success_once"])
             steps = [x for x in b.get("steps_to_90pct_of_best", []) if x is not None]
             headline = "–" if metric == "success_once" else f"{metric} {_num(m['mean'])} ± {_num(m['std'])}"
+            budget = [r for r in b.get("per_seed", []) if r.get("steps")]
+            trained = ", ".join(sorted({str(r["steps"]) for r in budget})) or "–"
+            cpu = [r["cpu_seconds"] for r in budget if r.get("cpu_seconds")]
+            cpu_mean = sum(cpu) / len(cpu) if cpu else None
             rows.append(
                 [task, label, headline, s["mean"], s["std"], s["n"], ", ".join(map(str, steps)) or "–"]
             )
+            rows[-1] += [trained, cpu_mean]
     header = ["task", "method", "headline", "success_once (mean)", "std over seeds", "seeds", "steps to 90 %"]
+    header += ["steps trained", "CPU s per run"]
     return _table(header, rows)
 
 
@@ -291,10 +297,12 @@ def render_pusht_modes(d: dict) -> str:
         )
     header = ["policy", "score", "95 %", "success", "95 %", *(f"{r} (bimodal seeds)" for r in routes)]
     expert = d["policies"].get("expert", {})
+    n_bimodal = len(d["bimodal_seeds"])
     note = (
         f"Bimodal seeds: the {len(d['bimodal_seeds'])} test seeds where the expert's first way around the T "
         f"was a free choice; the route rule agrees with the planner on "
-        f"{_num(expert.get('agreement_on_bimodal'), 3)} of them. `between`: the policy reached the T without "
+        f"{round((expert.get('agreement_on_bimodal') or 0) * n_bimodal)}/{n_bimodal}"
+        " of them. `between`: the policy reached the T without "
         "going around it (what averaging a left and a right path gives)."
     )
     return _table(header, rows) + "\n\n" + note
