@@ -100,6 +100,25 @@ def test_chunk_td_target_from_the_real_buffer_by_hand():
     torch.testing.assert_close(per_sample[rows], torch.full_like(per_sample[rows], 2 * (2 - target) ** 2))
 
 
+def test_reward_shaping_maps_every_step_of_a_chunk():
+    """reward_scale 0.5, reward_offset -1 per step on h = 3: the chunk return 1 + 0.9*2 + 0.81*3 of the
+    window at t = 0 becomes sum_i 0.9^i (0.5 r_i - 1); the defaults (offset -1) shift, 0/1 do not."""
+    cfg = run_cfg(**{"finetune.rl_horizon": 3, "finetune.reward_scale": 0.5, "finetune.reward_offset": -1.0})
+    trainer = FlowQTrainer(bc_actor(), cfg.finetune)
+    batch = RLBuffers(cfg, episodes(), rl_horizon=3, seed=0).sample_offline()
+    rows = ((batch["episode"] == 0) & (batch["step"] == 0)).nonzero().squeeze(1)
+    raw = batch["next", "reward"][rows].clone()
+    torch.testing.assert_close(raw, torch.full_like(raw, 1 + 0.9 * 2 + 0.81 * 3))
+    shaped = trainer.shape_rewards(batch)["next", "reward"][rows]
+    expected = (0.5 * 1 - 1) + 0.9 * (0.5 * 2 - 1) + 0.81 * (0.5 * 3 - 1)
+    torch.testing.assert_close(shaped, torch.full_like(shaped, expected))
+    assert OmegaConf.structured(AppConfig).finetune.reward_offset == -1.0
+    plain = FlowQTrainer(bc_actor(), run_cfg(**{"finetune.reward_offset": 0.0}).finetune)
+    again = RLBuffers(cfg, episodes(), rl_horizon=3, seed=0).sample_offline()
+    before = again["next", "reward"].clone()
+    assert torch.equal(plain.shape_rewards(again)["next", "reward"], before)
+
+
 @pytest.mark.parametrize("mixing", ["seed", "balanced"])
 def test_online_episodes_join_the_demonstrations(mixing):
     cfg = run_cfg(

@@ -28,6 +28,13 @@ class FinetuneConfig:
     num_qvalue_nets: int = 2
     critic_hidden_dims: list[int] = field(default_factory=lambda: [512, 512, 512, 512])
     gamma: float = 0.99
+    # The critic learns from reward * reward_scale + reward_offset per step. The simulators' rewards
+    # lie in [0, 1] (ManiSkill normalized_dense / sparse, PushT coverage, robosuite) and success ends a
+    # collected episode: with positive steps a critic values postponing success (gamma 0.99 over a
+    # 150-step episode is worth far more than the one success step), so the default shifts every step
+    # to r - 1 <= 0 (FQL's OGBench convention: -1 per step until the goal, 0 at it).
+    reward_scale: float = 1.0
+    reward_offset: float = -1.0
     rl_horizon: int = 0  # executed actions per critic chunk; 0: the policy's action_steps
     tau: float = 0.005  # Polyak rate of the target critics (TorchRL SoftUpdate)
     lr: float = 3.0e-4

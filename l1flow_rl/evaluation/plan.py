@@ -152,5 +152,3 @@ def resolve_plan(
 def task_from(cfg: DictConfig | Mapping[str, Any]) -> TaskConfig:
     """A validated :class:`TaskConfig` from a task node (DictConfig or plain dict)."""
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(TaskConfig), cfg))  # type: ignore[return-value]
-
-

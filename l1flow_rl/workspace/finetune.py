@@ -124,6 +124,8 @@ def _dataset(cfg: DictConfig, bc_state: dict) -> Path:
 
 
 def run_finetune(cfg: DictConfig) -> int:
+    from tqdm import tqdm
+
     from l1flow_rl.workspace.checkpoint import load_actor
     from l1flow_rl.workspace.dataset import load_task_episodes
     from l1flow_rl.workspace.distributed import resolve_device
@@ -246,7 +248,7 @@ def run_finetune(cfg: DictConfig) -> int:
         row = {**evaluator.history_row(result), "phase": phase, "env_steps": progress["env_steps"]}
         evals.append(row)
         logger.log_scalar("val/success_once_vs_env_steps", result["success_once"], step=progress["env_steps"])
-        print(
+        tqdm.write(
             f"[{phase}] update {trainer.updates}, env steps {progress['env_steps']}: validation "
             f"{evaluator.headline}={result[evaluator.headline]:.3f}"
         )
@@ -255,19 +257,28 @@ def run_finetune(cfg: DictConfig) -> int:
             save_checkpoint(ckpt_dir / "best.pt", checkpoint_state(None))
 
     # -- offline ------------------------------------------------------------------------------
+    def postfix(bar, metrics: dict[str, float]) -> None:
+        bar.set_postfix(q=f"{metrics['q_mean']:.2f}", qloss=f"{metrics['loss_qvalue']:.3f}", refresh=False)
+
     ocfg = cfg.offline
     t_offline = time.perf_counter()
+    bar = tqdm(
+        total=ocfg.steps, initial=progress["offline_updates"], desc="offline updates", dynamic_ncols=True
+    )
     while progress["offline_updates"] < ocfg.steps:
         batch = buffers.sample_offline().to(device)
         metrics = trainer.update(batch)
         progress["offline_updates"] += 1
+        bar.update(1)
         done = progress["offline_updates"] == ocfg.steps
         if trainer.updates % fcfg.log_every == 0 or done:
             log(metrics, "offline", batch)
+            postfix(bar, metrics)
         if evaluator is not None and ocfg.eval_every and progress["offline_updates"] % ocfg.eval_every == 0:
             evaluate_now("offline")
         if progress["offline_updates"] % fcfg.checkpoint_every == 0 or done:
             save(dump_online=False)
+    bar.close()
     offline_seconds = time.perf_counter() - t_offline
 
     # -- online -------------------------------------------------------------------------------
@@ -276,6 +287,7 @@ def run_finetune(cfg: DictConfig) -> int:
     if progress["env_steps"] < on.steps:
         from l1flow_rl.workspace.collect import OnlineCollector, round_stats
 
+        bar = tqdm(total=on.steps, initial=progress["env_steps"], desc="online env steps", dynamic_ncols=True)
         with OnlineCollector(cfg, trainer.actor, device) as collector:
             since_checkpoint, since_eval = 0, progress["env_steps"] % (on.eval_every or 1)
             while progress["env_steps"] < on.steps:
@@ -295,6 +307,8 @@ def run_finetune(cfg: DictConfig) -> int:
                     metrics = trainer.update(batch)
                     if trainer.updates % fcfg.log_every == 0 or i == updates - 1:
                         log(metrics, "online", batch)
+                        postfix(bar, metrics)
+                bar.update(frames)
                 since_checkpoint += updates
                 since_eval += frames
                 last = progress["env_steps"] >= on.steps
@@ -304,6 +318,7 @@ def run_finetune(cfg: DictConfig) -> int:
                 if since_checkpoint >= fcfg.checkpoint_every or last:
                     since_checkpoint = 0
                     save(dump_online=True)
+        bar.close()
     online_seconds = time.perf_counter() - t_online
 
     # -- final evaluation and report -----------------------------------------------------------

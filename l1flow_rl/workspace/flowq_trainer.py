@@ -9,6 +9,7 @@ from typing import Any
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
+from tensordict.utils import unravel_key
 from torchrl.objectives import SoftUpdate
 
 from l1flow_rl.actor import L1FlowActor
@@ -75,13 +76,24 @@ class FlowQTrainer:
             rl_horizon=h,
         )
         self.rl_horizon = h
+        # Valid chunks hold exactly h steps of their episode (chunk_valid), so the per-step affine map
+        # r -> scale * r + offset turns a discounted chunk return R_h into scale * R_h + offset * sum_i g^i.
+        self.reward_scale = float(cfg.get("reward_scale", 1.0))
+        self.reward_shift = float(cfg.get("reward_offset", 0.0)) * sum(cfg.gamma**i for i in range(h))
         self.updater = SoftUpdate(self.loss, tau=cfg.tau)
         params = [p for p in self.loss.parameters() if p.requires_grad]
         self.optimizer = torch.optim.Adam(params, lr=cfg.lr)
         self.updates = 0
 
+    def shape_rewards(self, batch: TensorDictBase) -> TensorDictBase:
+        """``batch`` with its chunk returns under ``finetune.reward_scale`` / ``reward_offset`` (in place)."""
+        if self.reward_scale != 1.0 or self.reward_shift != 0.0:
+            key = unravel_key(("next", self.loss.tensor_keys.reward))
+            batch.set(key, batch.get(key) * self.reward_scale + self.reward_shift)
+        return batch
+
     def update(self, batch: TensorDictBase) -> dict[str, float]:
-        out = self.loss(batch)
+        out = self.loss(self.shape_rewards(batch))
         total = out["loss_actor"] + out["loss_qvalue"]
         self.optimizer.zero_grad(set_to_none=True)
         total.backward()
