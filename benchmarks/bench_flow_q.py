@@ -24,16 +24,22 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from benchmarks.common import format_table, machine_info, save_results
 from benchmarks.sweep import Run, _cli, train  # _cli: the shared subprocess runner of benchmark runs
 
+#: the arms that start from the BC checkpoint (independent of each other: --jobs runs them side by side)
+ARMS = ("flowq_offline", "flowq_online", "bc_continued")
 
-def finetune(run: Run, data_dir: Path, checkpoint: Path) -> dict[str, Any]:
-    """Fine-tune (or resume, or just read) ``run`` from ``checkpoint``; returns its eval.json."""
+
+def finetune(run: Run, data_dir: Path, checkpoint: Path, threads: int | None = None) -> dict[str, Any]:
+    """Fine-tune (or resume, or just read) ``run`` from ``checkpoint``; returns its eval.json.
+    ``threads``: torch's intra-op threads (set when arms share the machine)."""
     if not run.done:
         resume = ["resume=true"] if (run.run_dir / "checkpoints" / "latest.pt").is_file() else []
         args = [
@@ -44,7 +50,7 @@ def finetune(run: Run, data_dir: Path, checkpoint: Path) -> dict[str, Any]:
             f"data_dir={data_dir}",
             *resume,
         ]
-        code = _cli(args, run.log)
+        code = _cli(args, run.log, {"OMP_NUM_THREADS": str(threads)} if threads else None)
         if code != 0:
             raise RuntimeError(f"{run.name}: l1flow-rl finetune exited with {code}; see {run.log}")
     return json.loads((run.run_dir / "eval.json").read_text())
@@ -63,6 +69,14 @@ def _record(result: dict[str, Any], run_dir: Path) -> dict[str, Any]:
         "env_steps": result.get("env_steps", 0),
         "wall_seconds": summary.get("wall_seconds"),
     }
+
+
+def _data_summary(path: Path | None) -> dict[str, Any] | None:
+    """What ``benchmarks.make_noisy_demos`` recorded about a dataset (None for expert demos)."""
+    if path is None:
+        return None
+    summary = path.with_suffix(".summary.json")
+    return {"path": str(path), **(json.loads(summary.read_text()) if summary.is_file() else {})}
 
 
 def _online_curve(run_dir: Path) -> list[dict[str, Any]]:
@@ -136,6 +150,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="maniskill_pickcube")
     parser.add_argument("--demos", type=int, default=10)
+    parser.add_argument(
+        "--data",
+        type=Path,
+        default=None,
+        help="a dataset file for every arm instead of --demos expert demos (benchmarks.make_noisy_demos)",
+    )
     parser.add_argument("--bc-steps", type=int, default=1500)
     parser.add_argument("--offline-steps", type=int, default=500)
     parser.add_argument("--online-steps", type=int, default=6000)
@@ -143,9 +163,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--online-eval-every", type=int, default=2000)
     parser.add_argument("--mode", default="distill", choices=("distill", "direct"))
     parser.add_argument("--alpha", type=float, default=100.0)
+    parser.add_argument("--gamma", type=float, default=0.99, help="the critic's per-step discount")
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--episodes", type=int, default=50, help="test (and validation) episodes")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--jobs", type=int, default=1, help="after BC, the other arms side by side (cores/jobs threads each)"
+    )
     parser.add_argument("--root", type=Path, default=Path("runs/bench_flow_q"))
     parser.add_argument("--data-dir", type=Path, default=Path("data"))
     parser.add_argument("--out", type=Path, default=None)
@@ -156,10 +180,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     shared = [f"task={args.task}", f"seed={args.seed}", f"eval.episodes={args.episodes}", *args.extra]
-    bc_over = [f"demos.num={args.demos}"]
+    bc_over = [f"data.path={args.data}"] if args.data else [f"demos.num={args.demos}"]
     ft_over = [
         f"finetune.mode={args.mode}",
         f"finetune.alpha={args.alpha}",
+        f"finetune.gamma={args.gamma}",
         f"finetune.batch_size={args.batch_size}",
         f"offline.steps={args.offline_steps}",
     ]
@@ -177,15 +202,24 @@ def main(argv: list[str] | None = None) -> int:
             "policy.timestep_embed_dim=16",
             *args.extra,
         ]
-        bc_over = ["demos.num=3"]
+        bc_over = [f"data.path={args.data}"] if args.data else ["demos.num=3"]
         ft_over = [
             f"finetune.mode={args.mode}",
             "finetune.batch_size=16",
             "finetune.critic_hidden_dims=[32,32]",
             "offline.steps=4",
         ]
-    tag = "quick" if args.quick else f"{args.task}_{args.demos}demos_{args.mode}_seed{args.seed}"
-    root = args.root / tag
+    source = args.data.stem.replace(".", "_") if args.data else f"{args.demos}demos"
+    gamma = "" if args.gamma == 0.99 else f"_gamma{args.gamma:g}".replace(".", "p")
+    tag = (
+        "quick"
+        if args.quick
+        else f"{args.task}_{source}_{args.mode}_alpha{args.alpha:g}{gamma}_seed{args.seed}"
+    )
+    # one folder per data set and seed: arms with the same settings (BC, continued BC) are shared by
+    # invocations that differ in the flow-Q settings; each run's folder names what sets it apart
+    root = args.root / (f"quick_{source}" if args.quick else f"{args.task}_{source}_seed{args.seed}")
+    fq_name = f"flowq_{args.mode}_alpha{args.alpha:g}{gamma}_off{args.offline_steps}".replace(".", "p")
     online_updates = args.offline_steps + round(args.updates_per_step * args.online_steps)
     online_over = [
         f"online.steps={args.online_steps}",
@@ -195,28 +229,39 @@ def main(argv: list[str] | None = None) -> int:
         f"online.frames_per_round={20 if args.quick else 200}",
     ]
 
-    bc_run = Run("bc", [*bc_over, *shared, f"train.steps={args.bc_steps}"], root / "bc")
+    bc_run = Run("bc", [*bc_over, *shared, f"train.steps={args.bc_steps}"], root / f"bc_{args.bc_steps}")
+    continued = args.bc_steps + online_updates
+    # no dot in a folder name: Run.log replaces the suffix after the last dot
+    online_name = f"{fq_name}_on{args.online_steps}x{args.updates_per_step:g}".replace(".", "p")
     runs = {
         "bc": bc_run,
-        "flowq_offline": Run("flowq_offline", [*ft_over, *shared, "online.steps=0"], root / "flowq_offline"),
-        "flowq_online": Run("flowq_online", [*ft_over, *shared, *online_over], root / "flowq_online"),
+        "flowq_offline": Run("flowq_offline", [*ft_over, *shared, "online.steps=0"], root / fq_name),
+        "flowq_online": Run("flowq_online", [*ft_over, *shared, *online_over], root / online_name),
         "bc_continued": Run(
-            "bc_continued",
-            [*bc_over, *shared, f"train.steps={args.bc_steps + online_updates}"],
-            root / "bc_continued",
+            "bc_continued", [*bc_over, *shared, f"train.steps={continued}"], root / f"bc_{continued}"
         ),
     }
     results: dict[str, dict[str, Any]] = {}
     results["bc"] = _record(train(bc_run, args.data_dir), bc_run.run_dir)
     checkpoint = bc_run.run_dir / "checkpoints" / "latest.pt"
-    for name in ("flowq_offline", "flowq_online"):
-        results[name] = _record(finetune(runs[name], args.data_dir, checkpoint), runs[name].run_dir)
-    results["bc_continued"] = _record(
-        train(runs["bc_continued"], args.data_dir), runs["bc_continued"].run_dir
-    )
+    threads = max(1, (os.cpu_count() or 1) // args.jobs) if args.jobs > 1 else None
 
+    def arm(name: str) -> dict[str, Any]:
+        run = runs[name]
+        if name == "bc_continued":
+            return _record(train(run, args.data_dir, threads), run.run_dir)
+        return _record(finetune(run, args.data_dir, checkpoint, threads), run.run_dir)
+
+    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        done = dict(zip(ARMS, pool.map(arm, ARMS)))
+    results.update(done)
+
+    data = (
+        f"{args.data.name} (rollouts with action noise, see 'data')" if args.data else f"{args.demos} demos"
+    )
     setting = (
-        f"{args.task}, {args.demos} demos, BC {args.bc_steps} steps; FlowQ ({args.mode}, alpha {args.alpha}) "
+        f"{args.task}, {data}, BC {args.bc_steps} steps; "
+        f"FlowQ ({args.mode}, alpha {args.alpha}, gamma {args.gamma}) "
         f"{args.offline_steps} offline updates + {args.online_steps} env steps x {args.updates_per_step} "
         f"updates/step; continued BC {args.bc_steps + online_updates} steps; {args.episodes} test episodes"
     )
@@ -236,6 +281,7 @@ def main(argv: list[str] | None = None) -> int:
         - results["bc_continued"]["success_once"],
         "online_curve": _online_curve(runs["flowq_online"].run_dir),
         "runs": {name: str(run.run_dir) for name, run in runs.items()},
+        "data": _data_summary(args.data),
         "machine": machine_info(),
     }
     out = args.out or Path("benchmarks/results") / f"flow_q_{tag}.json"

@@ -308,12 +308,31 @@ def render_pusht_modes(d: dict) -> str:
     return _table(header, rows) + "\n\n" + note
 
 
+def render_flow_q(d: dict) -> str:
+    labels = {
+        "bc": "BC (the start)",
+        "flowq_offline": "+ FlowQ offline",
+        "flowq_online": "+ FlowQ offline + online",
+        "bc_continued": "continued BC (same updates)",
+    }
+    fields = ("episodes", "updates", "env_steps", "wall_seconds")
+    rows = [
+        [labels.get(name, name), a["success_once"], _interval(a.get("ci95")), *(a.get(f) for f in fields)]
+        for name, a in d["arms"].items()
+    ]
+    header = ["arm", "success_once (test)", "95 % interval", "episodes", "updates", "env steps", "wall s"]
+    gain = d.get("gain_over_continued_bc")
+    note = f"Setting: {d['setting']}. Gain of online FlowQ over continued BC: {_num(gain)}."
+    return _table(header, rows) + "\n\n" + note
+
+
 #: file-name pattern -> (section title, renderer)
 RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
     (r"main_job\.json", "Main job", render_main_job),
     (r"latency\.json", "Inference latency and training step", render_latency),
     (r"success_.*\.json", "Success and convergence", render_success),
     (r"ablations_.*\.json", "Ablations", render_ablations),
+    (r"flow_q_.*\.json", "Flow-Q fine-tuning against continued BC", render_flow_q),
     (r"multimodal\.json", "Multi-modality (toy)", render_multimodal),
     (r"pusht_modes\.json", "Multi-modality on PushT: which way around the T", render_pusht_modes),
     (r"env_throughput_.*\.json", "Environment throughput", render_env_throughput),

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import pytest
+import torch
 
 pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
 
@@ -40,3 +41,53 @@ def test_quick_mode_runs_every_arm_and_saves_json_and_plot(tmp_path):
     assert out.with_suffix(".png").stat().st_size > 1000
     # a second call reads the finished runs back instead of repeating them
     assert bench_flow_q.main(args) == 0
+    # the README's table reads every arm from the file
+    from benchmarks import report
+
+    text = report.render_flow_q(figures)
+    for label, arm in (("BC (the start)", "bc"), ("continued BC (same updates)", "bc_continued")):
+        value = figures["arms"][arm]["success_once"]
+        assert f"| {label} | {report._num(float(value))} |" in text
+    assert f"Gain of online FlowQ over continued BC: {report._num(figures['gain_over_continued_bc'])}" in text
+
+
+def test_noisy_rollouts_are_recorded_by_maniskill_and_train_every_arm(tmp_path):
+    """benchmarks.make_noisy_demos: a BC policy's rollouts with action noise, in ManiSkill's own file
+    format (read back with rewards, final observations, actions inside the action space), the same
+    for the same seed and different under more noise; then the quick benchmark trains on the file."""
+    from benchmarks import make_noisy_demos
+    from l1flow_rl.data import load_episodes
+    from l1flow_rl.data.metadata import episodes_metadata
+
+    root = tmp_path / "runs"
+    common = ["--quick", "--root", str(root), "--data-dir", str(tmp_path / "data")]
+    assert bench_flow_q.main([*common, "--out", str(tmp_path / "expert.json")]) == 0
+    checkpoint = root / "quick_3demos" / "bc_20" / "checkpoints" / "latest.pt"
+
+    def record(noise: float, folder: str):
+        out = tmp_path / folder / "PushCube-v1.noisy.n2.h5"
+        return make_noisy_demos.record(checkpoint, episodes=2, noise=noise, out=out), out
+
+    summary, out = record(0.3, "noisy")
+    assert out.is_file() and out.with_suffix(".json").is_file()
+    assert json.loads(out.with_suffix(".summary.json").read_text()) == summary
+    eps = load_episodes(out)
+    meta = episodes_metadata(eps)
+    assert meta.has_rewards and meta.has_final_observation and meta.control_mode == "pd_ee_delta_pos"
+    assert eps.shape[0] == summary["steps"] <= 2 * 20  # the checkpoint's task: 20-step episodes
+    assert set(eps["episode"].tolist()) == {0, 1}
+    assert (eps["action"].abs() <= 1).all() and torch.isfinite(eps["next", "reward"]).all()
+    again = load_episodes(record(0.3, "again")[1])
+    assert torch.equal(again["action"], eps["action"])  # seeded: the same episodes again
+    louder = load_episodes(record(0.9, "louder")[1])
+    n = min(louder.shape[0], eps.shape[0])
+    assert not torch.equal(louder["action"][:n], eps["action"][:n])
+    with pytest.raises(ValueError, match="--noise -1"):
+        make_noisy_demos.record(checkpoint, 1, -1.0, tmp_path / "bad.h5")
+
+    figures_path = tmp_path / "noisy.json"
+    assert bench_flow_q.main([*common, "--data", str(out), "--out", str(figures_path)]) == 0
+    figures = json.loads(figures_path.read_text())
+    assert figures["data"]["path"] == str(out) and figures["data"]["noise"] == 0.3
+    assert figures["runs"]["bc"] != str(checkpoint.parents[1])  # its own BC, trained on the file
+    assert f"path: {out}" in (tmp_path / figures["runs"]["bc"] / "config.yaml").read_text()
