@@ -18,6 +18,22 @@ updates, 6000 env steps at 0.25 updates per step, 50 test episodes) is several h
 ``--quick`` checks the script on tiny budgets (PushCube, 3 demos).
 
     .venv/bin/python -m benchmarks.bench_flow_q --task maniskill_pickcube --demos 10
+
+``--data FILE`` trains every arm on one dataset instead, e.g. noisy rollouts from
+``benchmarks.make_noisy_demos`` (the run of ``benchmarks/results/flow_q_*noise0_1*.json``)::
+
+    .venv/bin/python -m benchmarks.make_noisy_demos --episodes 100 --noise 0.1 \
+        --checkpoint runs/bench_success/maniskill_pushcube/l1flow/seed0/checkpoints/best.pt \
+        --out runs/bench_flow_q/data/noisy/PushCube-v1.noise0.1.n100.h5
+    .venv/bin/python -m benchmarks.bench_flow_q --task maniskill_pushcube \
+        --data runs/bench_flow_q/data/noisy/PushCube-v1.noise0.1.n100.h5 --bc-steps 1500 \
+        --offline-steps 1000 --online-steps 2000 --updates-per-step 0.5 --online-eval-every 1000 \
+        --alpha 10 --jobs 2 --data-dir runs/bench_flow_q/data eval.val_episodes=20
+
+Runs live under ``--root``/<task>_<data>_seed<seed>/, one folder per arm named by what sets it apart
+(``bc_<steps>``, ``flowq_<mode>_alpha<a>[_gamma<g>]_off<n>[_on<m>x<u>]``), so invocations that change
+only the flow-Q settings share the BC arms; hydra overrides given as ``extra`` are not part of the
+names: change ``--root`` with them.
 """
 
 from __future__ import annotations

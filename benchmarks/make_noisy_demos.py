@@ -72,7 +72,8 @@ def record(
     )
     low = torch.as_tensor(env.action_space.low, dtype=torch.float32).reshape(-1)
     high = torch.as_tensor(env.action_space.high, dtype=torch.float32).reshape(-1)
-    gen = torch.Generator().manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)  # the injected action noise
+    torch.manual_seed(seed)  # the policy's own sampling noise: the same file again for the same seed
     successes, lengths = 0, []
     try:
         for i in range(episodes):

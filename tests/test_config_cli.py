@@ -38,6 +38,12 @@ def test_a_task_brings_its_default_budget_and_the_command_line_wins():
     assert (default.train.steps, default.train.batch_size) == (2500, 64)
     assert compose_config(["task=maniskill_pushcube_rgb", "train=gpu_rgb"]).train.steps == 30000
     assert compose_config(["task=maniskill_pushcube_rgb", "train.steps=7"]).train.steps == 7
+    # ... and its number of demonstrations
+    assert compose_config(["task=maniskill_stackcube"]).demos.num == 300
+    assert compose_config(["task=maniskill_stackcube", "demos.num=20"]).demos.num == 20
+    assert compose_config(["task=maniskill_stackcube", "demos=default"]).demos.num == 100
+    assert default.demos.num == 100 and compose_config(["demos=n300"]).demos.num == 300
+    assert load_task_config("maniskill_stackcube").env_id == "StackCube-v1"  # defaults list: not a field
 
 
 @pytest.mark.parametrize("policy", ["l1flow", "flow", "ddpm", "ddim", "regression"])
