@@ -196,7 +196,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
 
     shared = [f"task={args.task}", f"seed={args.seed}", f"eval.episodes={args.episodes}", *args.extra]
-    bc_over = [f"data.path={args.data}"] if args.data else [f"demos.num={args.demos}"]
     ft_over = [
         f"finetune.mode={args.mode}",
         f"finetune.alpha={args.alpha}",
@@ -218,13 +217,13 @@ def main(argv: list[str] | None = None) -> int:
             "policy.timestep_embed_dim=16",
             *args.extra,
         ]
-        bc_over = [f"data.path={args.data}"] if args.data else ["demos.num=3"]
         ft_over = [
             f"finetune.mode={args.mode}",
             "finetune.batch_size=16",
             "finetune.critic_hidden_dims=[32,32]",
             "offline.steps=4",
         ]
+    bc_over = [f"data.path={args.data}"] if args.data else [f"demos.num={args.demos}"]
     source = args.data.stem.replace(".", "_") if args.data else f"{args.demos}demos"
     gamma = "" if args.gamma == 0.99 else f"_gamma{args.gamma:g}".replace(".", "p")
     tag = (
@@ -272,9 +271,10 @@ def main(argv: list[str] | None = None) -> int:
         done = dict(zip(ARMS, pool.map(arm, ARMS)))
     results.update(done)
 
-    data = (
-        f"{args.data.name} (rollouts with action noise, see 'data')" if args.data else f"{args.demos} demos"
-    )
+    data_summary = _data_summary(args.data)
+    data = f"{args.demos} demos" if args.data is None else args.data.name
+    if data_summary and "noise" in data_summary:
+        data += f" (rollouts with action noise {data_summary['noise']}, see 'data')"
     setting = (
         f"{args.task}, {data}, BC {args.bc_steps} steps; "
         f"FlowQ ({args.mode}, alpha {args.alpha}, gamma {args.gamma}) "
@@ -297,7 +297,7 @@ def main(argv: list[str] | None = None) -> int:
         - results["bc_continued"]["success_once"],
         "online_curve": _online_curve(runs["flowq_online"].run_dir),
         "runs": {name: str(run.run_dir) for name, run in runs.items()},
-        "data": _data_summary(args.data),
+        "data": data_summary,
         "machine": machine_info(),
     }
     out = args.out or Path("benchmarks/results") / f"flow_q_{tag}.json"

@@ -59,6 +59,8 @@ def record(
         raise ValueError(f"{checkpoint}: trained on {task.name!r}; this script records ManiSkill state tasks")
     policy = actor.policy
     to, k = policy.obs_horizon, policy.action_steps
+    # The actor is driven by hand on the raw gym env: RecordEpisode must wrap the env ManiSkill makes,
+    # which the TorchRL adapter builds inside itself.
     tmp = Path(tempfile.mkdtemp(prefix=".noisy_", dir=out.parent if out.parent.exists() else None))
     env = make_gym_env(task, num_envs=1, device=torch.device("cpu"), render=False)
     env = RecordEpisode(
@@ -76,33 +78,35 @@ def record(
     torch.manual_seed(seed)  # the policy's own sampling noise: the same file again for the same seed
     successes, lengths = 0, []
     try:
-        for i in range(episodes):
-            obs, _ = env.reset(seed=seed + i)
-            history = deque([obs.reshape(1, -1).float()] * to, maxlen=to)
-            plan: list[torch.Tensor] = []
-            steps, success = 0, False
-            while True:
-                if not plan:
-                    td = TensorDict({"observation": torch.stack(list(history), 1)}, batch_size=[1])
-                    with torch.no_grad():
-                        chunk = actor(td)["action_chunk"][0]
-                    plan = list(chunk[:k])
-                action = plan.pop(0) + noise * torch.randn(low.shape, generator=gen)
-                action = torch.minimum(torch.maximum(action, low), high)
-                obs, _, terminated, truncated, info = env.step(action.reshape(1, -1))
-                history.append(obs.reshape(1, -1).float())
-                steps += 1
-                if bool(terminated) or bool(truncated):
-                    success = bool(info["success"])
-                    break
-            successes += success
-            lengths.append(steps)
+        try:
+            for i in range(episodes):
+                obs, _ = env.reset(seed=seed + i)
+                history = deque([obs.reshape(1, -1).float()] * to, maxlen=to)
+                plan: list[torch.Tensor] = []
+                steps, success = 0, False
+                while True:
+                    if not plan:
+                        td = TensorDict({"observation": torch.stack(list(history), 1)}, batch_size=[1])
+                        with torch.no_grad():
+                            chunk = actor(td)["action_chunk"][0]
+                        plan = list(chunk[:k])
+                    action = plan.pop(0) + noise * torch.randn(low.shape, generator=gen)
+                    action = torch.minimum(torch.maximum(action, low), high)
+                    obs, _, terminated, truncated, info = env.step(action.reshape(1, -1))
+                    history.append(obs.reshape(1, -1).float())
+                    steps += 1
+                    if bool(terminated) or bool(truncated):
+                        success = bool(info["success"])
+                        break
+                successes += success
+                lengths.append(steps)
+        finally:
+            env.close()  # RecordEpisode writes the files on close
+        out.parent.mkdir(parents=True, exist_ok=True)
+        for suffix in (".h5", ".json"):  # complete files only under the final name
+            shutil.move(str(tmp / f"{out.stem}{suffix}"), str(out.with_suffix(suffix)))
     finally:
-        env.close()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    for suffix in (".h5", ".json"):  # complete files only under the final name
-        shutil.move(str(tmp / f"{out.stem}{suffix}"), str(out.with_suffix(suffix)))
-    shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(tmp, ignore_errors=True)
     summary = {
         "checkpoint": str(checkpoint),
         "task": task.name,

@@ -78,8 +78,8 @@ class FlowQTrainer:
         self.rl_horizon = h
         # Valid chunks hold exactly h steps of their episode (chunk_valid), so the per-step affine map
         # r -> scale * r + offset turns a discounted chunk return R_h into scale * R_h + offset * sum_i g^i.
-        self.reward_scale = float(cfg.get("reward_scale", 1.0))
-        self.reward_shift = float(cfg.get("reward_offset", 0.0)) * sum(cfg.gamma**i for i in range(h))
+        self.reward_scale = float(cfg.reward_scale)
+        self.reward_shift = float(cfg.reward_offset) * sum(cfg.gamma**i for i in range(h))
         self.updater = SoftUpdate(self.loss, tau=cfg.tau)
         params = [p for p in self.loss.parameters() if p.requires_grad]
         self.optimizer = torch.optim.Adam(params, lr=cfg.lr)
