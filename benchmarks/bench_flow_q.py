@@ -180,6 +180,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mode", default="distill", choices=("distill", "direct"))
     parser.add_argument("--alpha", type=float, default=100.0)
     parser.add_argument("--gamma", type=float, default=0.99, help="the critic's per-step discount")
+    parser.add_argument(
+        "--critic-warmup",
+        type=int,
+        default=0,
+        help="critic-only updates before the actor moves, in addition to --offline-steps",
+    )
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--episodes", type=int, default=50, help="test (and validation) episodes")
     parser.add_argument("--seed", type=int, default=0)
@@ -201,7 +207,8 @@ def main(argv: list[str] | None = None) -> int:
         f"finetune.alpha={args.alpha}",
         f"finetune.gamma={args.gamma}",
         f"finetune.batch_size={args.batch_size}",
-        f"offline.steps={args.offline_steps}",
+        f"offline.steps={args.offline_steps + args.critic_warmup}",
+        f"offline.critic_warmup={args.critic_warmup}",
     ]
     if args.quick:
         args.task, args.demos, args.bc_steps = "maniskill_pushcube", 3, 20
@@ -221,21 +228,27 @@ def main(argv: list[str] | None = None) -> int:
             f"finetune.mode={args.mode}",
             "finetune.batch_size=16",
             "finetune.critic_hidden_dims=[32,32]",
-            "offline.steps=4",
+            "offline.steps=6",
+            "offline.critic_warmup=2",  # the quick run goes through the warm-up path too
         ]
+        args.critic_warmup = 2
     bc_over = [f"data.path={args.data}"] if args.data else [f"demos.num={args.demos}"]
     source = args.data.stem.replace(".", "_") if args.data else f"{args.demos}demos"
     gamma = "" if args.gamma == 0.99 else f"_gamma{args.gamma:g}".replace(".", "p")
+    warm = f"_warm{args.critic_warmup}" if args.critic_warmup else ""
     tag = (
         "quick"
         if args.quick
-        else f"{args.task}_{source}_{args.mode}_alpha{args.alpha:g}{gamma}_seed{args.seed}"
+        else f"{args.task}_{source}_{args.mode}_alpha{args.alpha:g}{gamma}{warm}_seed{args.seed}"
     )
     # one folder per data set and seed: arms with the same settings (BC, continued BC) are shared by
     # invocations that differ in the flow-Q settings; each run's folder names what sets it apart
     root = args.root / (f"quick_{source}" if args.quick else f"{args.task}_{source}_seed{args.seed}")
-    fq_name = f"flowq_{args.mode}_alpha{args.alpha:g}{gamma}_off{args.offline_steps}".replace(".", "p")
-    online_updates = args.offline_steps + round(args.updates_per_step * args.online_steps)
+    fq_name = f"flowq_{args.mode}_alpha{args.alpha:g}{gamma}{warm}_off{args.offline_steps}".replace(".", "p")
+    # every flow-Q update counts, critic-only warm-up included: continued BC gets as many steps
+    online_updates = (
+        args.critic_warmup + args.offline_steps + round(args.updates_per_step * args.online_steps)
+    )
     online_over = [
         f"online.steps={args.online_steps}",
         f"online.updates_per_step={args.updates_per_step}",
@@ -278,7 +291,8 @@ def main(argv: list[str] | None = None) -> int:
     setting = (
         f"{args.task}, {data}, BC {args.bc_steps} steps; "
         f"FlowQ ({args.mode}, alpha {args.alpha}, gamma {args.gamma}) "
-        f"{args.offline_steps} offline updates + {args.online_steps} env steps x {args.updates_per_step} "
+        + (f"{args.critic_warmup} critic-only updates + " if args.critic_warmup else "")
+        + f"{args.offline_steps} offline updates + {args.online_steps} env steps x {args.updates_per_step} "
         f"updates/step; continued BC {args.bc_steps + online_updates} steps; {args.episodes} test episodes"
     )
     figures = {
@@ -288,7 +302,8 @@ def main(argv: list[str] | None = None) -> int:
             "bc_steps": args.bc_steps,
             "offline_updates": args.offline_steps,
             "online_env_steps": args.online_steps,
-            "online_updates": online_updates - args.offline_steps,
+            "critic_warmup_updates": args.critic_warmup,
+            "online_updates": online_updates - args.offline_steps - args.critic_warmup,
             "bc_continued_steps": args.bc_steps + online_updates,
             "flowq_batch_size": args.batch_size,
         },

@@ -174,6 +174,25 @@ def test_trainer_updates_the_actor_and_critics_and_leaves_the_bc_actor(mode):
     assert policy_cfg["sampler"] == ("euler" if mode == "distill" else "two_step")
 
 
+@pytest.mark.parametrize("mode", ["distill", "direct"])
+def test_critic_warmup_updates_move_the_critics_only(mode):
+    torch.manual_seed(0)
+    cfg = run_cfg(**{"finetune.mode": mode, "finetune.alpha": 1.0, "finetune.batch_size": 32})
+    trainer = FlowQTrainer(bc_actor(), cfg.finetune)
+    buffers = RLBuffers(cfg, episodes(), rl_horizon=K, seed=0)
+    actor0 = {k: v.clone() for k, v in trainer.actor.state_dict().items()}
+    critic0 = trainer.loss.qvalue_network_params.clone()
+    for _ in range(3):
+        metrics = trainer.update(buffers.sample_offline(), actor=False)
+    assert "loss_actor" not in metrics and {"loss_qvalue", "q_data_mean", "grad_norm"} <= set(metrics)
+    assert all(torch.equal(v, actor0[k]) for k, v in trainer.actor.state_dict().items())
+    moved = trainer.loss.qvalue_network_params.get(("module", "mlp", "0", "weight"))
+    assert not torch.equal(moved, critic0.get(("module", "mlp", "0", "weight")))
+    assert trainer.updates == 3
+    trainer.update(buffers.sample_offline())  # then the actor moves too
+    assert any(not torch.equal(v, actor0[k]) for k, v in trainer.actor.state_dict().items())
+
+
 def test_bad_mixing_and_mode_are_named():
     with pytest.raises(ValueError, match=r"online\.mixing='half'"):
         RLBuffers(run_cfg(**{"online.mixing": "half"}), episodes(), rl_horizon=K, seed=0)
@@ -193,9 +212,12 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
             "online.steps=100",
             "online.num_envs=3",
             "online.frames_per_round=10",
+            "offline.steps=10",
+            "offline.critic_warmup=20",
         ]
     )
     err = capsys.readouterr().err
     assert code == 2
     assert "finetune.mode='fql': expected one of ['direct', 'distill']" in err
     assert "online.mixing='half'" in err and "online.frames_per_round=10" in err
+    assert "offline.critic_warmup=20: expected 0 <= critic_warmup <= offline.steps=10" in err

@@ -47,6 +47,9 @@ class FinetuneConfig:
 @dataclass
 class OfflineConfig:
     steps: int = 1000  # gradient updates on the demonstrations, before any environment step
+    # The first critic_warmup of those updates train the critics alone: an untrained critic's
+    # gradient only pushes the actor off the data (it has not learned which chunks are better).
+    critic_warmup: int = 0
     eval_every: int = 0  # updates; 0: no evaluation during the offline phase
 
 
@@ -82,6 +85,18 @@ def _check_online(cfg, command: str) -> list[str]:
     return problems
 
 
+def _check_offline(cfg, command: str) -> list[str]:
+    off = cfg.get("offline")
+    if command != "finetune" or off is None:
+        return []
+    if not 0 <= off.critic_warmup <= off.steps:
+        return [
+            f"offline.critic_warmup={off.critic_warmup}: expected 0 <= critic_warmup <= "
+            f"offline.steps={off.steps} (the warm-up updates are the first of the offline ones)"
+        ]
+    return []
+
+
 def _register_choices() -> None:
     from l1flow_rl.config.validate import register_check, register_choices
 
@@ -90,6 +105,7 @@ def _register_choices() -> None:
     register_choices("finetune.one_step_init", lambda: ("teacher", "scratch"))
     register_choices("online.mixing", lambda: ("seed", "balanced"))
     register_check(_check_online)
+    register_check(_check_offline)
 
 
 _register_choices()  # a bad value fails at config time, naming the field (l1flow_rl.config.validate)

@@ -258,7 +258,8 @@ def run_finetune(cfg: DictConfig) -> int:
 
     # -- offline ------------------------------------------------------------------------------
     def postfix(bar, metrics: dict[str, float]) -> None:
-        bar.set_postfix(q=f"{metrics['q_mean']:.2f}", qloss=f"{metrics['loss_qvalue']:.3f}", refresh=False)
+        q = metrics.get("q_mean", metrics["q_data_mean"])  # critic warm-up: no actor chunks scored
+        bar.set_postfix(q=f"{q:.2f}", qloss=f"{metrics['loss_qvalue']:.3f}", refresh=False)
 
     ocfg = cfg.offline
     t_offline = time.perf_counter()
@@ -267,7 +268,7 @@ def run_finetune(cfg: DictConfig) -> int:
     )
     while progress["offline_updates"] < ocfg.steps:
         batch = buffers.sample_offline().to(device)
-        metrics = trainer.update(batch)
+        metrics = trainer.update(batch, actor=progress["offline_updates"] >= ocfg.critic_warmup)
         progress["offline_updates"] += 1
         bar.update(1)
         done = progress["offline_updates"] == ocfg.steps

@@ -8,7 +8,7 @@ from typing import Any
 
 import torch
 from omegaconf import DictConfig
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import unravel_key
 from torchrl.objectives import SoftUpdate
 
@@ -92,9 +92,17 @@ class FlowQTrainer:
             batch.set(key, batch.get(key) * self.reward_scale + self.reward_shift)
         return batch
 
-    def update(self, batch: TensorDictBase) -> dict[str, float]:
-        out = self.loss(self.shape_rewards(batch))
-        total = out["loss_actor"] + out["loss_qvalue"]
+    def update(self, batch: TensorDictBase, actor: bool = True) -> dict[str, float]:
+        """One Adam step and one target update; ``actor=False`` trains the critics alone (warm-up:
+        the actor waits for a critic that ranks chunks, instead of climbing an untrained one)."""
+        batch = self.shape_rewards(batch)
+        if actor:
+            out = self.loss(batch)
+            total = out["loss_actor"] + out["loss_qvalue"]
+        else:
+            loss_q, meta = self.loss.qvalue_loss(batch)
+            out = TensorDict({"loss_qvalue": loss_q, **meta}, batch_size=[])
+            total = loss_q
         self.optimizer.zero_grad(set_to_none=True)
         total.backward()
         params = [p for group in self.optimizer.param_groups for p in group["params"]]
