@@ -314,6 +314,8 @@ def render_flow_q(d: dict) -> str:
         "flowq_offline": "+ FlowQ offline",
         "flowq_online": "+ FlowQ offline + online",
         "bc_continued": "continued BC (same updates)",
+        "bc_one_step": "BC (the start), one-step sampler",
+        "bc_continued_one_step": "continued BC, one-step sampler",
     }
     fields = ("episodes", "updates", "env_steps", "wall_seconds")
     rows = [
@@ -322,7 +324,9 @@ def render_flow_q(d: dict) -> str:
     ]
     header = ["arm", "success_once (test)", "95 % interval", "episodes", "updates", "env steps", "wall s"]
     gain = d.get("gain_over_continued_bc")
-    note = f"Setting: {d['setting']}. Gain of online FlowQ over continued BC: {_num(gain)}."
+    note = f"Setting: {d['setting']}. Gain of online FlowQ over continued BC: {_num(gain)}"
+    best = d.get("gain_over_best_continued_bc")
+    note += "." if best is None else f"; over the better of its two samplers: {_num(best)}."
     return _table(header, rows) + "\n\n" + note
 
 

@@ -29,7 +29,14 @@ def test_quick_mode_runs_every_arm_and_saves_json_and_plot(tmp_path):
     assert bench_flow_q.main(args) == 0
     figures = json.loads(out.read_text())
     assert figures["quick"] is True
-    assert set(figures["arms"]) == {"bc", "flowq_offline", "flowq_online", "bc_continued"}
+    assert set(figures["arms"]) == {
+        "bc",
+        "flowq_offline",
+        "flowq_online",
+        "bc_continued",
+        "bc_one_step",
+        "bc_continued_one_step",
+    }
     for arm in figures["arms"].values():
         assert 0.0 <= arm["success_once"] <= 1.0 and arm["episodes"] == 2
     assert figures["arms"]["flowq_online"]["env_steps"] == 40
@@ -52,6 +59,10 @@ def test_quick_mode_runs_every_arm_and_saves_json_and_plot(tmp_path):
         value = figures["arms"][arm]["success_once"]
         assert f"| {label} | {report._num(float(value))} |" in text
     assert f"Gain of online FlowQ over continued BC: {report._num(figures['gain_over_continued_bc'])}" in text
+    best = max(figures["arms"][a]["success_once"] for a in ("bc_continued", "bc_continued_one_step"))
+    assert figures["gain_over_best_continued_bc"] == pytest.approx(
+        figures["arms"]["flowq_online"]["success_once"] - best
+    )
 
 
 def test_noisy_rollouts_are_recorded_by_maniskill_and_train_every_arm(tmp_path):

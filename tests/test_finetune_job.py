@@ -186,12 +186,18 @@ def test_direct_mode_offline_only_keeps_the_two_step_actor(tmp_path, data_dir, b
         "finetune.batch_size=16",
         "finetune.critic_hidden_dims=[32]",
         "offline.steps=4",
+        "offline.critic_warmup=2",
+        "finetune.log_every=1",
         "online.steps=0",
         "eval.episodes=0",
     ]
     assert main(args) == 0
     state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
     assert state["progress"] == {"offline_updates": 4, "online_round": 0, "env_steps": 0}
+    # the first 2 updates train the critics alone (no actor loss), the next 2 both
+    metrics = json.loads((run_dir / "history.json").read_text())["history"]["metrics"]
+    assert ["loss_actor" in m for m in metrics] == [False, False, True, True]
+    assert all("loss_qvalue" in m and "bc_distance" in m for m in metrics)
     assert state["online_buffer"] is None
     actor, cfg = load_actor(run_dir / "checkpoints" / "latest.pt")
     assert actor.sampler.nfe == 2 and cfg.policy.sampler == "two_step"

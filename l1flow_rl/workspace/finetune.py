@@ -275,7 +275,12 @@ def run_finetune(cfg: DictConfig) -> int:
         if trainer.updates % fcfg.log_every == 0 or done:
             log(metrics, "offline", batch)
             postfix(bar, metrics)
-        if evaluator is not None and ocfg.eval_every and progress["offline_updates"] % ocfg.eval_every == 0:
+        if (
+            evaluator is not None
+            and ocfg.eval_every
+            and progress["offline_updates"] % ocfg.eval_every == 0
+            and progress["offline_updates"] > ocfg.critic_warmup  # the actor has not moved before
+        ):
             evaluate_now("offline")
         if progress["offline_updates"] % fcfg.checkpoint_every == 0 or done:
             save(dump_online=False)
