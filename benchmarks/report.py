@@ -122,7 +122,7 @@ def render_multimodal(d: dict) -> str:
 
 
 def render_success(d: dict) -> str:
-    rows = []
+    rows, notes = [], []
     for task, block in d["tasks"].items():
         for label, b in block.items():
             metric = b.get("metric", "success_once")  # PushT's headline is Diffusion Policy's score
@@ -134,12 +134,33 @@ def render_success(d: dict) -> str:
             cpu = [r["cpu_seconds"] for r in budget if r.get("cpu_seconds")]
             cpu_mean = sum(cpu) / len(cpu) if cpu else None
             rows.append(
-                [task, label, headline, s["mean"], s["std"], s["n"], ", ".join(map(str, steps)) or "–"]
+                [task, label, headline, s["mean"], s["std"], _pooled_interval(b.get("per_seed", [])), s["n"]]
             )
-            rows[-1] += [trained, cpu_mean]
-    header = ["task", "method", "headline", "success_once (mean)", "std over seeds", "seeds", "steps to 90 %"]
-    header += ["steps trained", "CPU s per run"]
-    return _table(header, rows)
+            rows[-1] += [", ".join(map(str, steps)) or "–", trained, cpu_mean]
+            if b.get("validation_sampler"):
+                notes.append(f"{task} {label}: validation curve under {b['validation_sampler']}")
+    header = ["task", "method", "headline", "success_once (mean)", "std over seeds", "95 % interval"]
+    header += ["seeds", "steps to 90 %", "steps trained", "CPU s per run"]
+    text = _table(header, rows)
+    text += (
+        "\n\n95 % interval: Wilson's, over every seed's test episodes pooled. Steps to 90 %: per seed, "
+        "the first validation step within 90 % of that seed's best."
+    )
+    if notes:
+        text += " " + "; ".join(notes) + " (its test figures use its own sampler)."
+    return text
+
+
+def _pooled_interval(per_seed: list[dict]) -> str:
+    """Wilson's 95 % interval of the success rate over all seeds' test episodes together."""
+    from l1flow_rl.evaluation import wilson_interval
+
+    counted = [(r["success_once"], r["episodes"]) for r in per_seed if r.get("episodes")]
+    n = sum(e for _, e in counted)
+    if not n:
+        return "–"
+    lo, hi = wilson_interval(round(sum(v * e for v, e in counted)), n)
+    return f"[{lo:.2f}, {hi:.2f}]"
 
 
 def render_ablations(d: dict) -> str:
@@ -375,6 +396,9 @@ def build_section(results: Path = RESULTS) -> str:
                 body = f"Not rendered: an older layout of this file ({err!r}); re-run its script."
             parts += [f"#### {title} (`{path.as_posix()}`)", "", f"Machine: {_machine(data)}.", ""]
             parts += [body, ""]
+            plot = path.with_suffix(".png")
+            if plot.is_file():  # the script's own figure beside its table
+                parts += [f"![{title}]({plot.as_posix()})", ""]
     rendered = {p.name for p in files for pat, _, _ in RENDERERS if re.fullmatch(pat, p.name)}
     unrendered = [p.name for p in files if p.name not in rendered]
     if unrendered:

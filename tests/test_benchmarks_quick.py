@@ -99,6 +99,8 @@ def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
         "0",
         "--jobs",
         "2",
+        "--ddpm-validation",
+        "ddim16",
         "--root",
         str(tmp_path),
     ]
@@ -109,7 +111,11 @@ def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
     assert block["regression"]["metric"] == "success_once"  # the default protocol's headline
     budget = block["regression"]["per_seed"][0]
     assert budget["steps"] == 4 and budget["cpu_seconds"] > 0 and budget["wall_seconds"] > 0
-    assert block["ddpm"]["per_seed"][0]["nfe_per_chunk"] == 100.0
+    assert block["ddpm"]["per_seed"][0]["nfe_per_chunk"] == 100.0  # tested under its own sampler
+    assert block["ddpm"]["validation_sampler"] == "ddim16"
+    assert block["regression"]["validation_sampler"] is None
+    history = json.loads((tmp_path / "maniskill_pushcube" / "ddpm" / "seed0" / "history.json").read_text())
+    assert {e["nfe_per_chunk"] for e in history["evals"] if e["split"] == "val"} == {16.0}
     assert block["ddpm_ddim16"]["per_seed"][0]["nfe_per_chunk"] == 16.0  # the same network, re-scored
     assert [step for step, _ in block["ddpm"]["curves"][0]] == [2, 4]  # validation curve, one point a step
     assert (tmp_path / "success_pushcube_quick.png").stat().st_size > 5_000

@@ -5,6 +5,7 @@ seeds and reports test seeds."""
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -197,3 +198,55 @@ def test_selection_takes_the_first_best_validation_and_the_final_model_without_o
     assert [e["step"] for e in chosen["evaluations"]] == [10, 20, 30]
     final = evaluator.selection([], final_step=30)
     assert (final["split"], final["step"]) == (None, 30) and "eval_every=0" in final["rule"]
+
+
+@pytest.mark.maniskill
+def test_validation_can_use_a_cheaper_sampler_of_the_same_network(tmp_path):
+    """eval.val_sampler: a DDPM-100 run validated under DDIM-4 (curve, checkpoint choice); its test
+    figures keep DDPM-100. The counted network evaluations per chunk say which sampler scored what."""
+    pytest.importorskip("mani_skill")
+    from l1flow_rl.cli import main
+
+    run_dir = tmp_path / "run"
+    args = [
+        f"data_dir={tmp_path / 'data'}",
+        f"run_dir={run_dir}",
+        "policy=ddpm",
+        "eval.val_sampler=ddim",
+        "eval.val_sampler_kwargs.steps=4",
+        "demos.num=2",
+        "train.steps=20",
+        "train.eval_every=10",
+        "train.batch_size=16",
+        "train.warmup_steps=2",
+        "policy.down_dims=[16,32]",
+        "policy.timestep_embed_dim=16",
+        "eval.episodes=1",
+        "eval.val_episodes=1",
+        "eval.num_envs=1",
+        "task.max_episode_steps=8",
+    ]
+    assert main(["train", *args]) == 0
+    evals = json.loads((run_dir / "history.json").read_text())["evals"]
+    assert [(e["split"], e["nfe_per_chunk"]) for e in evals] == [("val", 4.0), ("val", 4.0), ("test", 100.0)]
+    result = json.loads((run_dir / "eval.json").read_text())
+    assert result["selection"]["sampler"] == "ddim" and result["sampler"]["name"] == "ddpm"
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["eval.val_sampler=ddim9"], "eval.val_sampler='ddim9': expected one of"),
+        (
+            ["eval.val_sampler=ddim", "eval.val_sampler_kwargs.t_first=0.5"],
+            "eval.val_sampler_kwargs.t_first",
+        ),
+        (["eval.val_sampler=ddim"], "eval.val_sampler='ddim' reads a 'epsilon'-prediction network"),
+    ],
+)
+def test_a_validation_sampler_that_cannot_work_fails_at_config_time(overrides, message):
+    from l1flow_rl.cli import compose_config
+    from l1flow_rl.config.validate import ConfigValidationError, validate_config
+
+    with pytest.raises(ConfigValidationError, match=re.escape(message)):
+        validate_config(compose_config(["policy=l1flow", *overrides]), "train")

@@ -13,7 +13,7 @@ __all__ = ["OPEN_DICTS", "open_dict_overrides", "overrides_under", "user_overrid
 #: config dicts whose keys depend on another value (the sampler's or the loss's arguments): an
 #: override may add a key there without hydra's ``+`` (the keys are checked against the sampler or
 #: loss when the actor is built).
-OPEN_DICTS = ("policy.sampler_kwargs", "policy.loss_kwargs")
+OPEN_DICTS = ("policy.sampler_kwargs", "policy.loss_kwargs", "eval.val_sampler_kwargs")
 
 
 def user_overrides() -> list[str]:

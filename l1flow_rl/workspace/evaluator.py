@@ -38,6 +38,9 @@ class PeriodicEvaluator:
         from l1flow_rl.workspace.logging import log_evaluation
 
         episodes, seed = self.plan.split(split)
+        ev = self.cfg.eval
+        if split == "val" and ev.get("val_sampler"):  # the same network under a cheaper sampler
+            actor = actor.with_sampler(ev.val_sampler, **dict(ev.get("val_sampler_kwargs") or {}))
         if self.env is None:
             self.env = self.plan.make_env(self.cfg.policy.obs_horizon)
         filmed = self.plan.video_episodes if video_dir is not None else 0
@@ -60,7 +63,16 @@ class PeriodicEvaluator:
 
     def history_row(self, result: dict[str, Any]) -> dict[str, Any]:
         """The few numbers of an evaluation that the run keeps (plots, checkpoint choice)."""
-        keys = ("step", "split", "success_once", "success_at_end", "return", "episode_length", "episodes")
+        keys = (
+            "step",
+            "split",
+            "success_once",
+            "success_at_end",
+            "return",
+            "episode_length",
+            "episodes",
+            "nfe_per_chunk",  # counted: shows which sampler scored it (eval.val_sampler)
+        )
         row = {k: result[k] for k in keys if k in result}
         row[self.headline] = result[self.headline]
         return row
@@ -80,6 +92,7 @@ class PeriodicEvaluator:
             "split": "val",
             "step": best["step"],
             "rule": f"highest validation {self.headline}",
+            "sampler": self.cfg.eval.get("val_sampler") or self.cfg.policy.sampler,
             "value": best[self.headline],
             "seeds": {"first": self.plan.val_seed, "episodes": self.plan.val_episodes},
             "evaluations": [{"step": e["step"], self.headline: e[self.headline]} for e in val],
