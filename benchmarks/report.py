@@ -168,7 +168,11 @@ def render_ablations(d: dict) -> str:
         [name, b["kind"], b["success_once"]["mean"], b["success_once"]["std"], b["success_once"]["n"]]
         for name, b in d["variants"].items()
     ]
-    return _table(["variant", "kind", "success_once", "std", "seeds"], rows)
+    a = d.get("args", {})
+    setting = f"Setting: {a.get('task')}, {a.get('demos')} demonstrations, {a.get('steps')} training steps, "
+    setting += f"{a.get('eval_episodes')} test episodes per seed; "
+    setting += "sampler variants re-score the default network."
+    return _table(["variant", "kind", "success_once", "std", "seeds"], rows) + "\n\n" + setting
 
 
 def render_env_throughput(d: dict) -> str:
