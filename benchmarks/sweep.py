@@ -85,12 +85,23 @@ def make_demos(overrides: Sequence[str], data_dir: Path, log: Path) -> None:
         raise RuntimeError(f"l1flow-rl demos {' '.join(overrides)} exited with {code}; see {log}")
 
 
-def rescore(run: Run, name: str, overrides: Sequence[str], checkpoint: str = "latest.pt") -> dict[str, Any]:
+def rescore(run: Run, name: str, overrides: Sequence[str], checkpoint: str | None = None) -> dict[str, Any]:
     """Evaluate the run's trained network under other settings (a sampler swap, another protocol);
-    results go to ``<run_dir>/rescore_<name>/eval.json``."""
+    results go to ``<run_dir>/rescore_<name>/eval.json``.
+
+    ``checkpoint`` (a file in the run's checkpoints/) defaults to ``best.pt``: the model the run's own
+    test figures belong to (chosen on the validation seeds), so that a re-scoring differs from them in
+    its settings only; ``latest.pt`` where no evaluation chose one. A saved re-scoring of another
+    checkpoint is redone."""
+    ckpt_dir = run.run_dir / "checkpoints"
+    if checkpoint is None:
+        checkpoint = "best.pt" if (ckpt_dir / "best.pt").is_file() else "latest.pt"
+    ckpt = ckpt_dir / checkpoint
     out = run.run_dir / f"rescore_{name}"
-    if not (out / "eval.json").is_file():
-        ckpt = run.run_dir / "checkpoints" / checkpoint
+    saved = out / "eval.json"
+    if saved.is_file() and Path(json.loads(saved.read_text()).get("checkpoint", "")).name != checkpoint:
+        saved.unlink()  # made from another checkpoint (older sweeps re-scored latest.pt)
+    if not saved.is_file():
         code = _cli(["eval", f"checkpoint={ckpt}", f"run_dir={out}", *overrides], run.log)
         if code != 0:
             raise RuntimeError(f"{run.name}: l1flow-rl eval ({name}) exited with {code}; see {run.log}")

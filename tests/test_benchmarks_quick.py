@@ -117,6 +117,11 @@ def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
     history = json.loads((tmp_path / "maniskill_pushcube" / "ddpm" / "seed0" / "history.json").read_text())
     assert {e["nfe_per_chunk"] for e in history["evals"] if e["split"] == "val"} == {16.0}
     assert block["ddpm_ddim16"]["per_seed"][0]["nfe_per_chunk"] == 16.0  # the same network, re-scored
+    # ... the very model of the run's own test figures (chosen on validation): best.pt
+    rescored = json.loads(
+        (tmp_path / "maniskill_pushcube" / "ddpm" / "seed0" / "rescore_ddim16" / "eval.json").read_text()
+    )
+    assert rescored["checkpoint"].endswith("best.pt")
     assert [step for step, _ in block["ddpm"]["curves"][0]] == [2, 4]  # validation curve, one point a step
     assert (tmp_path / "success_pushcube_quick.png").stat().st_size > 5_000
     # a second call reads the finished runs back instead of training again
