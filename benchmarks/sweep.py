@@ -65,9 +65,41 @@ def _cli(args: Sequence[str], log: Path, env: dict[str, str] | None = None) -> i
     return proc.returncode
 
 
+def config_mismatches(run: Run) -> list[str]:
+    """The run's overrides that its saved ``config.yaml`` disagrees with (``task=X`` / ``policy=X``
+    compare the group's ``name``): a finished run of another setting in the same folder."""
+    import yaml
+    from omegaconf import OmegaConf
+
+    path = run.run_dir / "config.yaml"
+    if not path.is_file():
+        return []
+    cfg = OmegaConf.load(path)
+    found = []
+    for override in run.overrides:
+        if override.startswith(("+", "~")) or "=" not in override:
+            continue
+        key, raw = override.split("=", 1)
+        dotted = f"{key}.name" if key in ("task", "policy") else key
+        saved = OmegaConf.select(cfg, dotted, default=None)
+        if OmegaConf.is_config(saved):
+            saved = OmegaConf.to_container(saved, resolve=True)
+        wanted = yaml.safe_load(raw)
+        if saved != wanted:
+            found.append(f"{key}: the folder's run has {saved!r}, this sweep asks for {wanted!r}")
+    return found
+
+
 def train(run: Run, data_dir: Path, threads: int | None = None) -> dict[str, Any]:
     """Train (or resume, or just read) ``run``; returns its final eval.json. ``threads``: torch's
-    intra-op threads for the run (set when several runs share the machine)."""
+    intra-op threads for the run (set when several runs share the machine). A finished run whose
+    saved config disagrees with the run's overrides is an error, not a result."""
+    if run.done and (mismatches := config_mismatches(run)):
+        raise RuntimeError(
+            f"{run.run_dir} holds a finished run of another setting:\n  "
+            + "\n  ".join(mismatches)
+            + "\nmove it away or give this sweep another --root"
+        )
     if not run.done:
         resume = ["resume=true"] if (run.run_dir / "checkpoints" / "latest.pt").is_file() else []
         args = ["train", *run.overrides, f"run_dir={run.run_dir}", f"data_dir={data_dir}", *resume]

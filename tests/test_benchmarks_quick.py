@@ -167,3 +167,29 @@ def test_train_throughput_quick_mode_times_every_arm_and_cuda_latency_refuses_wi
         assert exit_info.value.code == 2
         assert "needs a CUDA GPU" in capsys.readouterr().err
         assert not (tmp_path / "latency_cuda.json").exists()
+
+
+def test_a_finished_run_of_another_setting_is_refused_not_read_back(tmp_path):
+    from omegaconf import OmegaConf
+
+    from benchmarks.sweep import Run, train
+
+    run_dir = tmp_path / "maniskill_stackcube" / "l1flow" / "seed0"
+    run_dir.mkdir(parents=True)
+    saved = {"task": {"name": "maniskill_stackcube"}, "policy": {"name": "l1flow", "down_dims": [16, 32]}}
+    OmegaConf.save(
+        OmegaConf.create({**saved, "seed": 0, "demos": {"num": 100}, "train": {"steps": 12000}}),
+        run_dir / "config.yaml",
+    )
+    (run_dir / "eval.json").write_text(json.dumps({"success_once": 0.62}))
+    same = [
+        "task=maniskill_stackcube",
+        "policy=l1flow",
+        "seed=0",
+        "demos.num=100",
+        "policy.down_dims=[16,32]",
+    ]
+    assert train(Run("same", same, run_dir), tmp_path / "data")["success_once"] == 0.62  # read back
+    other = [*same[:3], "demos.num=300", "train.steps=2500"]
+    with pytest.raises(RuntimeError, match=r"demos\.num: the folder's run has 100, this sweep asks for 300"):
+        train(Run("other", other, run_dir), tmp_path / "data")
