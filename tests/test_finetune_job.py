@@ -134,10 +134,10 @@ def test_resume_matches_an_uninterrupted_run(tmp_path, data_dir, bc_checkpoint, 
     ]
     real_update = FlowQTrainer.update
 
-    def crashing_update(self, batch):
+    def crashing_update(self, batch, actor=True):
         if self.updates == 12:  # inside the second online round
             raise RuntimeError("simulated crash at update 12")
-        return real_update(self, batch)
+        return real_update(self, batch, actor=actor)
 
     monkeypatch.setattr(FlowQTrainer, "update", crashing_update)
     with pytest.raises(RuntimeError, match="simulated crash"):
