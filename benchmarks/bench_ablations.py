@@ -19,14 +19,20 @@ N loss variants side by side. Pick a setting below the ceiling, or every variant
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from benchmarks.common import format_table, machine_info, save_results
-from benchmarks.sweep import Run, make_demos, mean_and_spread, rescore, seed_record, train
+from benchmarks.sweep import (
+    Run,
+    make_demos,
+    mean_and_spread,
+    rescore,
+    seed_record,
+    train,
+    train_side_by_side,
+)
 
 #: retrained variants: name -> loss options (policy=l1flow otherwise)
 LOSS_VARIANTS: dict[str, list[str]] = {
@@ -108,13 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     if args.jobs > 1:
         make_demos([o for o in common if o.startswith(("task", "demos."))], data_dir, root / "demos.log")
-        pending = [r for runs in grid.values() for r in runs if not r.done]
-        threads = max(1, (os.cpu_count() or 1) // args.jobs)
-        with ThreadPoolExecutor(args.jobs) as pool:
-            futures = [pool.submit(train, r, data_dir, threads) for r in pending]
-        failed = [f.exception() for f in futures if f.exception()]
-        if failed:
-            raise RuntimeError(f"{len(failed)} run(s) failed: {failed[0]}")
+        train_side_by_side([r for runs in grid.values() for r in runs], data_dir, args.jobs)
     for name, runs in grid.items():
         evals = [train(r, data_dir) for r in runs]
         results[name] = {"kind": "loss", "options": LOSS_VARIANTS[name], "evals": evals}

@@ -28,9 +28,7 @@ demonstrations are made once first). ``--quick`` checks the script on tiny budge
 from __future__ import annotations
 
 import argparse
-import os
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +44,7 @@ from benchmarks.sweep import (
     seed_record,
     steps_to_fraction_of_best,
     train,
+    train_side_by_side,
 )
 
 POLICIES = ("l1flow", "flow", "ddpm", "regression")
@@ -99,14 +98,8 @@ def _train_side_by_side(grid: dict[str, dict[str, list[Run]]], args: argparse.Na
         first = next(iter(by_policy.values()))[0]
         shared = [o for o in first.overrides if o.startswith(("task", "demos."))]
         make_demos(shared, root / "data", root / task / "demos.log")
-    pending = [r for by_policy in grid.values() for runs in by_policy.values() for r in runs if not r.done]
-    threads = max(1, (os.cpu_count() or 1) // args.jobs)
-    with ThreadPoolExecutor(args.jobs) as pool:
-        failures = [
-            f for f in [pool.submit(train, r, root / "data", threads) for r in pending] if f.exception()
-        ]
-    if failures:
-        raise RuntimeError(f"{len(failures)} run(s) failed: {failures[0].exception()}")
+    runs = [r for by_policy in grid.values() for task_runs in by_policy.values() for r in task_runs]
+    train_side_by_side(runs, root / "data", args.jobs)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,6 +15,7 @@ import os
 import subprocess
 import sys
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ __all__ = [
     "seed_record",
     "steps_to_fraction_of_best",
     "train",
+    "train_side_by_side",
 ]
 
 
@@ -115,6 +117,19 @@ def make_demos(overrides: Sequence[str], data_dir: Path, log: Path) -> None:
     code = _cli(["demos", *overrides, f"data_dir={data_dir}"], log)
     if code != 0:
         raise RuntimeError(f"l1flow-rl demos {' '.join(overrides)} exited with {code}; see {log}")
+
+
+def train_side_by_side(runs: Sequence[Run], data_dir: Path, jobs: int) -> None:
+    """Train the unfinished ``runs`` ``jobs`` at a time, cores/jobs torch threads each (small networks
+    use several cores poorly). Make the runs' shared demonstrations first (``make_demos``): runs
+    making the same file at once would race."""
+    pending = [r for r in runs if not r.done]
+    threads = max(1, (os.cpu_count() or 1) // jobs)
+    with ThreadPoolExecutor(jobs) as pool:
+        futures = [pool.submit(train, r, data_dir, threads) for r in pending]
+    failed = [f.exception() for f in futures if f.exception()]
+    if failed:
+        raise RuntimeError(f"{len(failed)} run(s) failed: {failed[0]}")
 
 
 def rescore(run: Run, name: str, overrides: Sequence[str], checkpoint: str | None = None) -> dict[str, Any]:

@@ -59,43 +59,35 @@ def _check_seeds(cfg: DictConfig, command: str) -> list[str]:
 
 
 def _check_val_sampler(cfg: DictConfig, command: str) -> list[str]:
-    """``eval.val_sampler``: a known sampler, arguments it takes, and one that reads what the loss trains."""
+    """``eval.val_sampler``'s arguments, and that it reads what ``policy.loss`` trains (its name is a
+    registered choice); the policy's own sampler check, under the eval field names."""
     ev = cfg.get("eval") if isinstance(cfg, DictConfig) else None
-    name = ev.get("val_sampler") if ev is not None else None
-    if not name:
+    if ev is None or not ev.get("val_sampler") or cfg.get("policy") is None:
         return []
-    from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_parameters, samplers_for
-    from l1flow_rl.workspace.build import LOSSES
+    from l1flow_rl.config.validate import check_policy
+    from l1flow_rl.flow.samplers import sampler_names
 
-    if name not in sampler_names():
-        return [f"eval.val_sampler={name!r}: expected one of {sorted(sampler_names())}"]
-    kwargs = dict(ev.get("val_sampler_kwargs") or {})
-    unknown = sorted(set(kwargs) - set(sampler_parameters(name)))
-    if unknown:
-        return [
-            f"eval.val_sampler_kwargs.{k}: sampler {name!r} takes no such argument; it takes "
-            f"{sampler_parameters(name)}"
-            for k in unknown
-        ]
-    try:
-        sampler = make_sampler(name, **kwargs)
-    except (TypeError, ValueError) as err:
-        return [f"eval.val_sampler_kwargs={kwargs}: {err}"]
-    loss = LOSSES.get(cfg.policy.loss) if cfg.get("policy") is not None else None
-    prediction = getattr(loss, "prediction", None)
-    if prediction and sampler.prediction != prediction:
-        return [
-            f"eval.val_sampler={name!r} reads a {sampler.prediction!r}-prediction network, but "
-            f"policy.loss={cfg.policy.loss!r} trains {prediction!r} prediction; samplers that fit: "
-            f"{samplers_for(prediction)}"
-        ]
-    return []
+    if ev.val_sampler not in sampler_names():  # reported by the choices check
+        return []
+    method = {
+        "sampler": ev.val_sampler,
+        "sampler_kwargs": ev.get("val_sampler_kwargs"),
+        "loss": cfg.policy.loss,
+    }
+    return check_policy(method, sampler_field="eval.val_sampler")
+
+
+def _samplers() -> list[str]:
+    from l1flow_rl.flow.samplers import sampler_names
+
+    return sampler_names()
 
 
 def _register_checks() -> None:
     from l1flow_rl.config.validate import register_check, register_choices
 
     register_choices("eval.protocol", _protocols)
+    register_choices("eval.val_sampler", _samplers)
     register_check(_check_seeds)
     register_check(_check_val_sampler)
 

@@ -170,9 +170,13 @@ def _accepted_kwargs(cls: type) -> list[str]:
     return [p.name for p in params if p.name not in skip and p.kind in kinds]
 
 
-def check_policy(policy: Mapping[str, Any] | DictConfig, prefix: str = "policy") -> list[str]:
+def check_policy(
+    policy: Mapping[str, Any] | DictConfig, prefix: str = "policy", sampler_field: str | None = None
+) -> list[str]:
     """Problems with a method: the sampler's and the loss's names and keyword arguments, the
-    values the sampler refuses, and whether the loss trains what the sampler reads.
+    values the sampler refuses, and whether the loss trains what the sampler reads. Messages name
+    ``<prefix>.loss`` and ``<sampler_field>`` / ``<sampler_field>_kwargs`` (default
+    ``<prefix>.sampler``), so a sampler set elsewhere (``eval.val_sampler``) is checked the same way.
 
     Example:
         >>> policy = {"sampler": "euler", "sampler_kwargs": {"t_first": 0.5}, "loss": "l1flow"}
@@ -183,6 +187,7 @@ def check_policy(policy: Mapping[str, Any] | DictConfig, prefix: str = "policy")
     from l1flow_rl.workspace.build import LOSSES
 
     p = _plain(policy)
+    sf = sampler_field or f"{prefix}.sampler"
     problems: list[str] = []
     sampler_name, loss_name = p.get("sampler"), p.get("loss")
     sampler = None
@@ -191,15 +196,15 @@ def check_policy(policy: Mapping[str, Any] | DictConfig, prefix: str = "policy")
         accepted = sampler_parameters(sampler_name)
         unknown = sorted(set(kwargs) - set(accepted))
         problems += [
-            f"{prefix}.sampler_kwargs.{k}: sampler {sampler_name!r} takes no such argument; it takes "
-            f"{accepted} (drop it with ~{prefix}.sampler_kwargs.{k})"
+            f"{sf}_kwargs.{k}: sampler {sampler_name!r} takes no such argument; it takes "
+            f"{accepted} (drop it with ~{sf}_kwargs.{k})"
             for k in unknown
         ]
         if not unknown:
             try:
                 sampler = make_sampler(sampler_name, **kwargs)
             except (TypeError, ValueError) as err:
-                problems.append(f"{prefix}.sampler_kwargs={kwargs}: {err}")
+                problems.append(f"{sf}_kwargs={kwargs}: {err}")
     if loss_name in LOSSES:
         cls = LOSSES[loss_name]
         accepted = _accepted_kwargs(cls)
@@ -219,7 +224,7 @@ def check_policy(policy: Mapping[str, Any] | DictConfig, prefix: str = "policy")
         prediction = getattr(cls, "prediction", None)
         if sampler is not None and prediction and sampler.prediction != prediction:
             problems.append(
-                f"{prefix}.sampler={sampler_name!r} reads a {sampler.prediction!r}-prediction network, but "
+                f"{sf}={sampler_name!r} reads a {sampler.prediction!r}-prediction network, but "
                 f"{prefix}.loss={loss_name!r} trains {prediction!r} prediction; samplers that fit: "
                 f"{samplers_for(prediction)}"
             )
