@@ -40,6 +40,7 @@ from benchmarks.sweep import (
     mean_and_spread,
     read_history,
     rescore,
+    rescore_side_by_side,
     run_budget,
     seed_record,
     steps_to_fraction_of_best,
@@ -89,6 +90,28 @@ def _plot(results: dict[str, Any], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _rescore_plan(policy: str, args: argparse.Namespace) -> list[tuple[str, str, list[str]]]:
+    """The re-scorings of one method's runs, as ``(label in the results, rescore name, eval
+    overrides)``: its sampler swaps, then every evaluation again under ManiSkill's protocol."""
+    task_fields = _task_overrides(args.extra)
+    plan = [
+        (f"{policy}_{name}", name, [*overrides, f"eval.episodes={args.eval_episodes}", *task_fields])
+        for name, (policies, overrides) in RESCORES.items()
+        if policy in policies
+    ]
+    if args.maniskill_protocol:
+        for label in [policy, *(label for label, _, _ in plan)]:
+            sampler = RESCORES.get(label.removeprefix(f"{policy}_"), ((), []))[1]
+            plan.append(
+                (
+                    f"{label}_maniskill_protocol",
+                    f"{label}_maniskill",
+                    [*sampler, "eval.protocol=maniskill", *task_fields],
+                )
+            )
+    return plan
 
 
 def _train_side_by_side(grid: dict[str, dict[str, list[Run]]], args: argparse.Namespace, root: Path) -> None:
@@ -162,26 +185,25 @@ def main(argv: list[str] | None = None) -> int:
             ]
     if args.jobs > 1:
         _train_side_by_side(grid, args, root)
+    plans = {task: {p: _rescore_plan(p, args) for p in by_policy} for task, by_policy in grid.items()}
+    if args.jobs > 1:  # re-scorings side by side too; the loop below then reads them back
+        rescore_side_by_side(
+            [
+                (r, name, o)
+                for t in grid
+                for p, runs in grid[t].items()
+                for _, name, o in plans[t][p]
+                for r in runs
+            ],
+            args.jobs,
+        )
     results: dict[str, Any] = {}
     for task, by_policy in grid.items():
         results[task] = {}
         for policy, runs in by_policy.items():
             evaluations: dict[str, list[dict[str, Any]]] = {policy: [train(r, root / "data") for r in runs]}
-            for name, (policies, overrides) in RESCORES.items():
-                if policy in policies:
-                    extra = [f"eval.episodes={args.eval_episodes}", *_task_overrides(args.extra)]
-                    evaluations[f"{policy}_{name}"] = [rescore(r, name, [*overrides, *extra]) for r in runs]
-            if args.maniskill_protocol:
-                for label in list(evaluations):
-                    sampler = RESCORES.get(label.removeprefix(f"{policy}_"), ((), []))[1]
-                    evaluations[f"{label}_maniskill_protocol"] = [
-                        rescore(
-                            r,
-                            f"{label}_maniskill",
-                            [*sampler, "eval.protocol=maniskill", *_task_overrides(args.extra)],
-                        )
-                        for r in runs
-                    ]
+            for label, name, overrides in plans[task][policy]:
+                evaluations[label] = [rescore(r, name, overrides) for r in runs]
             metric = headline_metric(evaluations[policy][0])
             curves = [[(e["step"], e.get(metric, e["success_once"])) for e in read_history(r)] for r in runs]
             for label, evals in evaluations.items():

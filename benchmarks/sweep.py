@@ -132,14 +132,16 @@ def train_side_by_side(runs: Sequence[Run], data_dir: Path, jobs: int) -> None:
         raise RuntimeError(f"{len(failed)} run(s) failed: {failed[0]}")
 
 
-def rescore(run: Run, name: str, overrides: Sequence[str], checkpoint: str | None = None) -> dict[str, Any]:
+def rescore(
+    run: Run, name: str, overrides: Sequence[str], checkpoint: str | None = None, threads: int | None = None
+) -> dict[str, Any]:
     """Evaluate the run's trained network under other settings (a sampler swap, another protocol);
     results go to ``<run_dir>/rescore_<name>/eval.json``.
 
     ``checkpoint`` (a file in the run's checkpoints/) defaults to ``best.pt``: the model the run's own
     test figures belong to (chosen on the validation seeds), so that a re-scoring differs from them in
     its settings only; ``latest.pt`` where no evaluation chose one. A saved re-scoring of another
-    checkpoint is redone."""
+    checkpoint is redone. ``threads``: torch's intra-op threads (set when several share the machine)."""
     ckpt_dir = run.run_dir / "checkpoints"
     if checkpoint is None:
         checkpoint = "best.pt" if (ckpt_dir / "best.pt").is_file() else "latest.pt"
@@ -149,10 +151,22 @@ def rescore(run: Run, name: str, overrides: Sequence[str], checkpoint: str | Non
     if saved.is_file() and Path(json.loads(saved.read_text()).get("checkpoint", "")).name != checkpoint:
         saved.unlink()  # made from another checkpoint (older sweeps re-scored latest.pt)
     if not saved.is_file():
-        code = _cli(["eval", f"checkpoint={ckpt}", f"run_dir={out}", *overrides], run.log)
+        env = {"OMP_NUM_THREADS": str(threads)} if threads else None
+        code = _cli(["eval", f"checkpoint={ckpt}", f"run_dir={out}", *overrides], run.log, env)
         if code != 0:
             raise RuntimeError(f"{run.name}: l1flow-rl eval ({name}) exited with {code}; see {run.log}")
     return json.loads((out / "eval.json").read_text())
+
+
+def rescore_side_by_side(jobs: Sequence[tuple[Run, str, Sequence[str]]], workers: int) -> None:
+    """Run the re-scorings ``(run, name, overrides)`` ``workers`` at a time (each is one process on
+    cores/workers threads); the results land on disk, where ``rescore`` then reads them back."""
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    with ThreadPoolExecutor(workers) as pool:
+        futures = [pool.submit(rescore, run, name, overrides, None, threads) for run, name, overrides in jobs]
+    failed = [f.exception() for f in futures if f.exception()]
+    if failed:
+        raise RuntimeError(f"{len(failed)} re-scoring(s) failed: {failed[0]}")
 
 
 def read_history(run: Run, split: str = "val") -> list[dict[str, Any]]:
