@@ -196,6 +196,12 @@ def main(argv: list[str] | None = None) -> int:
         default=0,
         help="critic-only updates before the actor moves, in addition to --offline-steps",
     )
+    parser.add_argument(
+        "--critic-pretrain",
+        type=int,
+        default=0,
+        help="critic updates on the demonstrations' Monte-Carlo returns before those (cheap: no actor call)",
+    )
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--episodes", type=int, default=50, help="test (and validation) episodes")
     parser.add_argument("--seed", type=int, default=0)
@@ -217,8 +223,9 @@ def main(argv: list[str] | None = None) -> int:
         f"finetune.alpha={args.alpha}",
         f"finetune.gamma={args.gamma}",
         f"finetune.batch_size={args.batch_size}",
-        f"offline.steps={args.offline_steps + args.critic_warmup}",
+        f"offline.steps={args.offline_steps + args.critic_warmup + args.critic_pretrain}",
         f"offline.critic_warmup={args.critic_warmup}",
+        f"offline.critic_pretrain={args.critic_pretrain}",
     ]
     if args.quick:
         args.task, args.demos, args.bc_steps = "maniskill_pushcube", 3, 20
@@ -238,14 +245,17 @@ def main(argv: list[str] | None = None) -> int:
             f"finetune.mode={args.mode}",
             "finetune.batch_size=16",
             "finetune.critic_hidden_dims=[32,32]",
-            "offline.steps=6",
-            "offline.critic_warmup=2",  # the quick run goes through the warm-up path too
+            "offline.steps=7",
+            "offline.critic_pretrain=1",  # the quick run goes through both critic-only paths too
+            "offline.critic_warmup=2",
         ]
-        args.critic_warmup = 2
+        args.critic_warmup, args.critic_pretrain = 2, 1
     bc_over = [f"data.path={args.data}"] if args.data else [f"demos.num={args.demos}"]
     source = args.data.stem.replace(".", "_") if args.data else f"{args.demos}demos"
     gamma = "" if args.gamma == 0.99 else f"_gamma{args.gamma:g}".replace(".", "p")
-    warm = f"_warm{args.critic_warmup}" if args.critic_warmup else ""
+    warm = (f"_mc{args.critic_pretrain}" if args.critic_pretrain else "") + (
+        f"_warm{args.critic_warmup}" if args.critic_warmup else ""
+    )
     tag = (
         "quick"
         if args.quick
@@ -255,10 +265,10 @@ def main(argv: list[str] | None = None) -> int:
     # invocations that differ in the flow-Q settings; each run's folder names what sets it apart
     root = args.root / (f"quick_{source}" if args.quick else f"{args.task}_{source}_seed{args.seed}")
     fq_name = f"flowq_{args.mode}_alpha{args.alpha:g}{gamma}{warm}_off{args.offline_steps}".replace(".", "p")
-    # every flow-Q update counts, critic-only warm-up included: continued BC gets as many steps
-    online_updates = (
-        args.critic_warmup + args.offline_steps + round(args.updates_per_step * args.online_steps)
-    )
+    # every flow-Q update counts, critic-only ones included (the Monte-Carlo ones cost far less than
+    # a BC step, so this favours continued BC): continued BC gets as many steps
+    critic_only = args.critic_pretrain + args.critic_warmup
+    online_updates = critic_only + args.offline_steps + round(args.updates_per_step * args.online_steps)
     online_over = [
         f"online.steps={args.online_steps}",
         f"online.updates_per_step={args.updates_per_step}",
@@ -304,6 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     setting = (
         f"{args.task}, {data}, BC {args.bc_steps} steps; "
         f"FlowQ ({args.mode}, alpha {args.alpha}, gamma {args.gamma}) "
+        + (f"{args.critic_pretrain} Monte-Carlo critic updates + " if args.critic_pretrain else "")
         + (f"{args.critic_warmup} critic-only updates + " if args.critic_warmup else "")
         + f"{args.offline_steps} offline updates + {args.online_steps} env steps x {args.updates_per_step} "
         f"updates/step; continued BC {args.bc_steps + online_updates} steps; {args.episodes} test episodes"
@@ -315,8 +326,9 @@ def main(argv: list[str] | None = None) -> int:
             "bc_steps": args.bc_steps,
             "offline_updates": args.offline_steps,
             "online_env_steps": args.online_steps,
+            "critic_pretrain_updates": args.critic_pretrain,
             "critic_warmup_updates": args.critic_warmup,
-            "online_updates": online_updates - args.offline_steps - args.critic_warmup,
+            "online_updates": online_updates - args.offline_steps - critic_only,
             "bc_continued_steps": args.bc_steps + online_updates,
             "flowq_batch_size": args.batch_size,
         },

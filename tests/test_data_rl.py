@@ -115,6 +115,31 @@ def test_chunk_return_next_observation_and_masks_by_hand_at_an_episode_end():
     )
 
 
+def test_monte_carlo_entries_by_hand():
+    """("mc", ...): the discounted return to the episode's end, the steps it sums, the last reward
+    and whether the episode terminated, for every drawn window."""
+    eps = make_episodes()
+    rb = make_chunk_buffer(
+        eps, obs_horizon=2, pred_horizon=8, batch_size=2000, seed=1, rl_horizon=4, gamma=GAMMA
+    )
+    batch = rb.sample()
+    assert batch["mc", "return"].shape == (2000, 1) and batch["mc", "return"].dtype == torch.float32
+    rows = ((batch["episode"] == 0) & (batch["step"] == 3)).nonzero()
+    i = int(rows[0])  # episode 0: L = 6, r_t = 1 + t: steps 3, 4, 5 remain
+    assert batch["mc", "return"][i].item() == pytest.approx(4 + 0.9 * 5 + 0.81 * 6)
+    assert batch["mc", "steps"][i].item() == 3 and batch["mc", "last_reward"][i].item() == 6
+    assert bool(batch["mc", "terminated"][i])
+    lengths, terms = {0: 6, 1: 9}, {0: True, 1: False}
+    for i in range(batch.shape[0]):
+        e, t = int(batch["episode"][i]), int(batch["step"][i])
+        n = lengths[e]
+        expected = sum(GAMMA**k * (1 + (t + k) + 10 * e) for k in range(n - t))
+        assert batch["mc", "return"][i].item() == pytest.approx(expected, rel=1e-6)
+        assert batch["mc", "steps"][i].item() == n - t
+        assert batch["mc", "last_reward"][i].item() == n + 10 * e
+        assert bool(batch["mc", "terminated"][i]) == terms[e]
+
+
 @pytest.mark.parametrize("to,h,horizon", [(1, 1, 4), (3, 2, 8), (2, 7, 8)])
 def test_every_window_matches_the_contract(to, h, horizon):
     lengths, terms = (1, 3, 7, 12), (False, True, True, False)

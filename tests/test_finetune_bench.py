@@ -43,6 +43,7 @@ def test_quick_mode_runs_every_arm_and_saves_json_and_plot(tmp_path):
     assert figures["arms"]["flowq_offline"]["env_steps"] == 0
     # BC + critic warm-up + offline + online updates: every flow-Q update is matched by a BC step
     assert figures["budget"]["critic_warmup_updates"] == 2
+    assert figures["budget"]["critic_pretrain_updates"] == 1
     assert figures["budget"]["bc_continued_steps"] == 20 + 2 + 4 + 4
     assert figures["arms"]["bc_continued"]["updates"] == 30
     assert figures["arms"]["flowq_offline"]["updates"] == 6

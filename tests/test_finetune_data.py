@@ -193,6 +193,52 @@ def test_critic_warmup_updates_move_the_critics_only(mode):
     assert any(not torch.equal(v, actor0[k]) for k, v in trainer.actor.state_dict().items())
 
 
+def test_monte_carlo_targets_by_hand():
+    """Shaped rewards r - 1 (the default offset), gamma 0.9: a terminated episode's value is its
+    return to the end; a truncated one's adds its last shaped reward repeated forever."""
+    cfg = run_cfg()
+    trainer = FlowQTrainer(bc_actor(), cfg.finetune)
+    batch = RLBuffers(cfg, episodes(), rl_horizon=K, seed=0).sample_offline()
+    mc = trainer.mc_targets(batch).reshape(-1)
+    lengths, terminated = {0: 5, 1: 12}, {0: True, 1: False}
+    for i in range(batch.shape[0]):
+        e, t = int(batch["episode"][i]), int(batch["step"][i])
+        n = lengths[e]
+        # reward 1 + s, shaped to s
+        expected = sum(GAMMA**k * (t + k) for k in range(n - t))
+        if not terminated[e]:
+            expected += GAMMA ** (n - t) * (n - 1) / (1 - GAMMA)
+        assert mc[i].item() == pytest.approx(expected, rel=1e-5)
+
+
+@pytest.mark.parametrize("mode", ["distill", "direct"])
+def test_monte_carlo_pretraining_fits_the_returns_and_moves_the_critics_only(mode):
+    torch.manual_seed(0)
+    small = {"finetune.reward_scale": 0.05, "finetune.reward_offset": 0.0}  # values of a few units
+    cfg = run_cfg(**{"finetune.mode": mode, "finetune.batch_size": 64, "finetune.lr": 3e-3, **small})
+    trainer = FlowQTrainer(bc_actor(), cfg.finetune)
+    buffers = RLBuffers(cfg, episodes(), rl_horizon=K, seed=0)
+    actor0 = {k: v.clone() for k, v in trainer.actor.state_dict().items()}
+    target0 = trainer.loss.target_qvalue_network_params.clone()
+    with pytest.raises(ValueError, match="actor=False"):
+        trainer.update(buffers.sample_offline(), critic="mc")
+    probe = buffers.sample_offline()
+    before = trainer.critic_diagnostics(probe, generator=torch.Generator().manual_seed(0))
+    losses = [
+        trainer.update(buffers.sample_offline(), actor=False, critic="mc")["loss_qvalue"] for _ in range(150)
+    ]
+    after = trainer.critic_diagnostics(probe, generator=torch.Generator().manual_seed(0))
+    assert sum(losses[-10:]) < 0.1 * sum(losses[:10])
+    # the critics now follow the data's values: Q rises and falls with the Monte-Carlo value
+    assert after["q_mc_corr"] > 0.9 and after["q_mc_corr"] > before["q_mc_corr"]
+    assert after["q_state_std"] > before["q_state_std"] and after["q_chunk_std"] >= 0
+    assert all(torch.equal(v, actor0[k]) for k, v in trainer.actor.state_dict().items())
+    # no bootstrap yet: the target critics stay put until the pretraining hands over
+    assert (trainer.loss.target_qvalue_network_params == target0).all()
+    trainer.sync_target_critics()
+    assert (trainer.loss.target_qvalue_network_params == trainer.loss.qvalue_network_params.detach()).all()
+
+
 def test_bad_mixing_and_mode_are_named():
     with pytest.raises(ValueError, match=r"online\.mixing='half'"):
         RLBuffers(run_cfg(**{"online.mixing": "half"}), episodes(), rl_horizon=K, seed=0)
@@ -220,4 +266,5 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
     assert code == 2
     assert "finetune.mode='fql': expected one of ['direct', 'distill']" in err
     assert "online.mixing='half'" in err and "online.frames_per_round=10" in err
-    assert "offline.critic_warmup=20: expected 0 <= critic_warmup <= offline.steps=10" in err
+    assert "offline.critic_pretrain=0 + offline.critic_warmup=20: expected two counts >= 0" in err
+    assert "summing to at most offline.steps=10" in err

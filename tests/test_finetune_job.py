@@ -4,6 +4,7 @@ online FlowQ updates (TorchRL collector, 2 worker envs), eval.json and checkpoin
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 import torch
@@ -185,7 +186,8 @@ def test_direct_mode_offline_only_keeps_the_two_step_actor(tmp_path, data_dir, b
         "finetune.alpha=2.5",
         "finetune.batch_size=16",
         "finetune.critic_hidden_dims=[32]",
-        "offline.steps=4",
+        "offline.steps=5",
+        "offline.critic_pretrain=1",
         "offline.critic_warmup=2",
         "finetune.log_every=1",
         "online.steps=0",
@@ -193,11 +195,13 @@ def test_direct_mode_offline_only_keeps_the_two_step_actor(tmp_path, data_dir, b
     ]
     assert main(args) == 0
     state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
-    assert state["progress"] == {"offline_updates": 4, "online_round": 0, "env_steps": 0}
-    # the first 2 updates train the critics alone (no actor loss), the next 2 both
+    assert state["progress"] == {"offline_updates": 5, "online_round": 0, "env_steps": 0}
+    # the first update fits the Monte-Carlo returns, the next 2 train the critics alone by TD (no
+    # actor loss), the last 2 both
     metrics = json.loads((run_dir / "history.json").read_text())["history"]["metrics"]
-    assert ["loss_actor" in m for m in metrics] == [False, False, True, True]
+    assert ["loss_actor" in m for m in metrics] == [False, False, False, True, True]
     assert all("loss_qvalue" in m and "bc_distance" in m for m in metrics)
+    assert all(math.isfinite(m["q_mc_corr"]) and m["q_chunk_std"] >= 0 for m in metrics)
     assert state["online_buffer"] is None
     actor, cfg = load_actor(run_dir / "checkpoints" / "latest.pt")
     assert actor.sampler.nfe == 2 and cfg.policy.sampler == "two_step"

@@ -47,8 +47,11 @@ class FinetuneConfig:
 @dataclass
 class OfflineConfig:
     steps: int = 1000  # gradient updates on the demonstrations, before any environment step
-    # The first critic_warmup of those updates train the critics alone: an untrained critic's
-    # gradient only pushes the actor off the data (it has not learned which chunks are better).
+    # The first critic_pretrain of those updates regress the critics onto the demonstrations'
+    # Monte-Carlo returns (no actor call, no bootstrap: cheap), so that TD starts from the data's values.
+    critic_pretrain: int = 0
+    # The next critic_warmup updates train the critics alone by TD: an untrained critic's gradient
+    # only pushes the actor off the data (it has not learned which chunks are better).
     critic_warmup: int = 0
     eval_every: int = 0  # updates; 0: no evaluation during the offline phase
 
@@ -89,10 +92,12 @@ def _check_offline(cfg, command: str) -> list[str]:
     off = cfg.get("offline")
     if command != "finetune" or off is None:
         return []
-    if not 0 <= off.critic_warmup <= off.steps:
+    pretrain = off.get("critic_pretrain", 0)
+    if pretrain < 0 or off.critic_warmup < 0 or pretrain + off.critic_warmup > off.steps:
         return [
-            f"offline.critic_warmup={off.critic_warmup}: expected 0 <= critic_warmup <= "
-            f"offline.steps={off.steps} (the warm-up updates are the first of the offline ones)"
+            f"offline.critic_pretrain={pretrain} + offline.critic_warmup={off.critic_warmup}: expected "
+            f"two counts >= 0 summing to at most offline.steps={off.steps} (the critic-only updates are "
+            "the first of the offline ones)"
         ]
     return []
 

@@ -14,6 +14,11 @@ actions (``action_chunk[:, To-1 : To-1+h]``) and discount g:
 ``"chunk_valid"``            [B, 1] t+h <= L: all h executed actions lie inside the episode. Data
                              without a recorded final observation also mark invalid the window with
                              t+h == L of a truncated episode, whose bootstrap would need it
+``("mc", "return")``         [B, 1] sum_{i=0}^{L-t-1} g^i r_{t+i}, the discounted return to the episode's
+                             end (Monte-Carlo critic targets)
+``("mc", "steps")``          [B, 1] L - t, the steps it sums
+``("mc", "last_reward")``    [B, 1] r_{L-1}, for valuing what a truncated episode left unplayed
+``("mc", "terminated")``     [B, 1] the episode ended in a terminal state (its return is complete)
 ============================ ==========================================================================
 
 The TD target is then ``R + g^h * (1 - terminated) * Q(next observation, next chunk)``, masked by
@@ -85,6 +90,14 @@ def read_rl_targets(
         observations = _where_rows(at_end, final, observations)
 
     episode_terminated = gather(data.get(("next", "terminated")), end - 1).reshape(batch, 1).bool()
+
+    # the return to the episode's end, over the longest remainder in the batch
+    span = torch.arange(int((length - rel).max()))
+    left = rel + span < length
+    rows = torch.minimum(t.unsqueeze(1) + span, end.unsqueeze(1) - 1)
+    rewards = gather(data.get(layout.reward_key), rows).reshape(batch, span.numel()).to(torch.float64)
+    return_to_go = (rewards * gamma ** span.to(torch.float64) * left).sum(1, keepdim=True)
+    last_reward = gather(data.get(layout.reward_key), end - 1).reshape(batch, 1)
     done = rel + h >= length
     valid = rel + h <= length
     if not final_observation_known:
@@ -98,6 +111,12 @@ def read_rl_targets(
                 "truncated": done & ~episode_terminated,
             },
             "chunk_valid": valid,
+            "mc": {
+                "return": return_to_go.to(torch.float32),
+                "steps": length - rel,
+                "last_reward": last_reward.to(torch.float32),
+                "terminated": episode_terminated,
+            },
         },
         batch_size=[batch],
     )

@@ -18,6 +18,7 @@ as FQL does.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -371,6 +372,13 @@ class FlowQLoss(LossModule):
             raise ValueError(f"{key!r} must have shape {[*batch, 1]} ({what}), got {tuple(value.shape)}")
         return value.reshape(-1, 1)
 
+    def _valid(self, td: TensorDictBase, batch: tuple[int, ...], device: torch.device) -> Tensor:
+        """``chunk_valid`` flattened to [N] (absent: every chunk is valid)."""
+        key = self.tensor_keys.chunk_valid
+        if td.get(key, default=None) is None:
+            return torch.ones(math.prod(batch), dtype=torch.bool, device=device)
+        return self._flag(td, key, batch, "chunk validity").reshape(-1).bool()
+
     def _clip(self, x: Tensor, policy: ChunkPolicy) -> Tensor:
         """Clip a normalised chunk to the action range (identity when ``clip_actions`` is off)."""
         if not self.clip_actions:
@@ -443,12 +451,7 @@ class FlowQLoss(LossModule):
         )
         if next_obs.shape[0] != n:
             raise ValueError(f"{keys.next_observation!r} has {next_obs.shape[0]} rows, expected {n}")
-        valid_in = tensordict.get(keys.chunk_valid, default=None)
-        valid = (
-            torch.ones(n, dtype=torch.bool, device=chunk.device)
-            if valid_in is None
-            else self._flag(tensordict, keys.chunk_valid, batch, "chunk validity").reshape(n).bool()
-        )
+        valid = self._valid(tensordict, batch, chunk.device)
         reward = self._flag(
             tensordict, unravel_key(("next", keys.reward)), batch, "the discounted chunk return"
         )
@@ -481,9 +484,29 @@ class FlowQLoss(LossModule):
             target_td.set(unravel_key(("next", keys.terminated)), terminated)
             target_td.set(unravel_key(("next", keys.state_action_value)), next_value)
             target = self.value_estimator.value_estimate(target_td)  # [N, 1]
+        return self._fit(obs, chunk, batch, valid, target)
+
+    def qvalue_regression_loss(
+        self, tensordict: TensorDictBase, target: Tensor
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """Critic loss against given values ``target`` [*B, 1] (e.g. Monte-Carlo returns): squared
+        error of every ensemble member on the batch's chunks (summed), over valid chunks. No actor
+        call and no target critic: a cheap way to give the critics the data's values before TD."""
+        obs, chunk, batch = self._read(tensordict)
+        n = obs.shape[0]
+        if tuple(target.shape) != (*batch, 1):
+            raise ValueError(f"target must have shape {[*batch, 1]}, got {tuple(target.shape)}")
+        valid = self._valid(tensordict, batch, chunk.device)
+        return self._fit(obs, chunk, batch, valid, target.reshape(n, 1).to(chunk.dtype).detach())
+
+    def _fit(
+        self, obs: TensorDictBase, chunk: Tensor, batch: tuple[int, ...], valid: Tensor, target: Tensor
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """Squared error of every critic's Q(s, executed chunk) against ``target`` [N, 1] (summed over
+        the ensemble), reduced over the valid chunks, with the critic diagnostics."""
+        n = obs.shape[0]
         q = self._q(obs, self._executed(chunk), self.qvalue_network_params)  # [Q, N, 1]
-        per_sample = (q - target.unsqueeze(0)).square().sum(0).reshape(n)
-        loss = self._reduce(per_sample, batch, valid)
+        loss = self._reduce((q - target.unsqueeze(0)).square().sum(0).reshape(n), batch, valid)
         w = valid.to(q.dtype)
         diagnostics = {
             "q_data_mean": (q.mean(0).reshape(n) * w).sum() / w.sum().clamp_min(1),

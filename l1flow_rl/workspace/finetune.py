@@ -233,7 +233,11 @@ def run_finetune(cfg: DictConfig) -> int:
     def log(metrics: dict[str, float], phase: str, batch) -> None:
         step = trainer.updates
         gen = torch.Generator().manual_seed(step)  # off the training RNG stream
-        metrics = {**metrics, "bc_distance": trainer.bc_distance(batch, generator=gen)}
+        metrics = {
+            **metrics,
+            "bc_distance": trainer.bc_distance(batch, generator=gen),
+            **trainer.critic_diagnostics(batch, generator=gen),
+        }
         history["updates"].append(step)
         history["env_steps"].append(progress["env_steps"])
         history["phase"].append(phase)
@@ -262,13 +266,20 @@ def run_finetune(cfg: DictConfig) -> int:
         bar.set_postfix(q=f"{q:.2f}", qloss=f"{metrics['loss_qvalue']:.3f}", refresh=False)
 
     ocfg = cfg.offline
+    critic_only = ocfg.critic_pretrain + ocfg.critic_warmup  # offline updates before the actor's first
     t_offline = time.perf_counter()
     bar = tqdm(
         total=ocfg.steps, initial=progress["offline_updates"], desc="offline updates", dynamic_ncols=True
     )
     while progress["offline_updates"] < ocfg.steps:
         batch = buffers.sample_offline().to(device)
-        metrics = trainer.update(batch, actor=progress["offline_updates"] >= ocfg.critic_warmup)
+        done_before = progress["offline_updates"]
+        if done_before < ocfg.critic_pretrain:
+            metrics = trainer.update(batch, actor=False, critic="mc")
+            if done_before + 1 == ocfg.critic_pretrain:
+                trainer.sync_target_critics()
+        else:
+            metrics = trainer.update(batch, actor=done_before >= critic_only)
         progress["offline_updates"] += 1
         bar.update(1)
         done = progress["offline_updates"] == ocfg.steps
@@ -279,7 +290,7 @@ def run_finetune(cfg: DictConfig) -> int:
             evaluator is not None
             and ocfg.eval_every
             and progress["offline_updates"] % ocfg.eval_every == 0
-            and progress["offline_updates"] > ocfg.critic_warmup  # the actor has not moved before
+            and progress["offline_updates"] > critic_only  # the actor has not moved before
         ):
             evaluate_now("offline")
         if progress["offline_updates"] % fcfg.checkpoint_every == 0 or done:

@@ -10,6 +10,7 @@ import torch
 from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import unravel_key
+from torch import Tensor
 from torchrl.objectives import SoftUpdate
 
 from l1flow_rl.actor import L1FlowActor
@@ -92,11 +93,36 @@ class FlowQTrainer:
             batch.set(key, batch.get(key) * self.reward_scale + self.reward_shift)
         return batch
 
-    def update(self, batch: TensorDictBase, actor: bool = True) -> dict[str, float]:
-        """One Adam step and one target update; ``actor=False`` trains the critics alone (warm-up:
-        the actor waits for a critic that ranks chunks, instead of climbing an untrained one)."""
+    def mc_targets(self, batch: TensorDictBase) -> Tensor:
+        """Monte-Carlo values [B, 1] of the batch's chunks under the shaped rewards: the discounted
+        return to the episode's end (``("mc", ...)`` entries of the windows); a truncated episode's
+        unplayed remainder is valued as its last reward repeated forever (it stopped where it stood),
+        a terminated one's is 0."""
+        gamma = float(self.cfg.gamma)
+        ret, steps = batch.get(("mc", "return")), batch.get(("mc", "steps")).to(torch.float64)
+        last, terminated = batch.get(("mc", "last_reward")), batch.get(("mc", "terminated")).bool()
+        discount = gamma**steps  # gamma^(L - t)
+        geometric = (1.0 - discount) / (1.0 - gamma) if gamma < 1.0 else steps
+        value = self.reward_scale * ret.to(torch.float64) + float(self.cfg.reward_offset) * geometric
+        if gamma < 1.0:
+            tail = discount * (self.reward_scale * last.to(torch.float64) + float(self.cfg.reward_offset))
+            value = value + torch.where(terminated, torch.zeros_like(tail), tail / (1.0 - gamma))
+        return value.to(ret.dtype)
+
+    def update(self, batch: TensorDictBase, actor: bool = True, critic: str = "td") -> dict[str, float]:
+        """One Adam step and one target update. ``actor=False`` trains the critics alone (warm-up:
+        the actor waits for a critic that ranks chunks, instead of climbing an untrained one).
+        ``critic="mc"`` (critics alone) regresses them onto :meth:`mc_targets` instead of the TD
+        target (call :meth:`sync_target_critics` when that pretraining ends)."""
+        if critic not in ("td", "mc"):
+            raise ValueError(f"critic must be 'td' or 'mc', got {critic!r}")
+        if critic == "mc" and actor:
+            raise ValueError("critic='mc' pretrains the critics alone; pass actor=False")
         batch = self.shape_rewards(batch)
-        if actor:
+        if critic == "mc":
+            loss_q, meta = self.loss.qvalue_regression_loss(batch, self.mc_targets(batch))
+            out, total = TensorDict({"loss_qvalue": loss_q, **meta}, batch_size=[]), loss_q
+        elif actor:
             out = self.loss(batch)
             total = out["loss_actor"] + out["loss_qvalue"]
         else:
@@ -109,11 +135,52 @@ class FlowQTrainer:
         clip = self.cfg.grad_clip if self.cfg.grad_clip > 0 else float("inf")
         grad_norm = torch.nn.utils.clip_grad_norm_(params, clip)
         self.optimizer.step()
-        self.updater.step()
+        if critic == "td":  # Monte-Carlo regression bootstraps from nothing: no target to track
+            self.updater.step()
         self.updates += 1
         metrics = {k: float(v.detach()) for k, v in out.items() if v.numel() == 1}
         metrics["grad_norm"] = float(grad_norm)
         return metrics
+
+    @torch.no_grad()
+    def sync_target_critics(self) -> None:
+        """Target critics := critics (after Monte-Carlo pretraining, before TD takes over)."""
+        self.loss.target_qvalue_network_params.update_(self.loss.qvalue_network_params.detach())
+
+    @torch.no_grad()
+    def critic_diagnostics(
+        self, batch: TensorDictBase, samples: int = 8, generator: torch.Generator | None = None
+    ) -> dict[str, float]:
+        """Does the critic rank anything? On the batch's valid chunks: ``q_state_std``, the spread of
+        Q(s, data chunk) across states; ``q_chunk_std``, the mean spread of Q over ``samples`` of the
+        actor's chunks at the same state (what its gradient can use); ``q_mc_corr``, the correlation
+        of Q(s, data chunk) with the chunk's Monte-Carlo value (NaN without ``("mc", ...)`` entries).
+        ``batch`` is read as stored (rewards unshaped)."""
+        loss, policy = self.loss, self.actor.policy
+        obs, chunk, batch_dims = loss._read(batch)
+        valid = loss._valid(batch, batch_dims, chunk.device)
+        obs, chunk = obs[valid], chunk[valid]
+        n = obs.shape[0]
+        params = loss.qvalue_network_params
+        q_data = loss._q(obs, loss._executed(chunk), params).mean(0).reshape(n)
+        shape = (n, policy.pred_horizon, policy.action_dim)
+        device = policy.action_normalizer.scale.device
+        sampled = []
+        for _ in range(samples):
+            noise = torch.randn(shape, generator=generator, dtype=policy.dtype).to(device)
+            with loss.actor_network_params.to_module(loss.actor_network):
+                x = loss._clip(loss._sample(policy, obs, noise), policy)
+            action = policy.action_normalizer.unnormalize(loss._executed(x))
+            sampled.append(loss._q(obs, action, params).mean(0).reshape(n))
+        out = {
+            "q_state_std": float(q_data.std()),
+            "q_chunk_std": float(torch.stack(sampled, 1).std(1).mean()),
+            "q_mc_corr": float("nan"),
+        }
+        if ("mc", "return") in batch.keys(include_nested=True):
+            mc = self.mc_targets(batch).reshape(-1)[valid]
+            out["q_mc_corr"] = float(torch.corrcoef(torch.stack([q_data, mc.to(q_data.dtype)]))[0, 1])
+        return out
 
     @torch.no_grad()
     def bc_distance(self, batch: TensorDictBase, generator: torch.Generator | None = None) -> float:
