@@ -10,8 +10,8 @@ Every variant is a loss option (retrained) or a sampler swap (the same trained n
 Saved: ``benchmarks/results/ablations_<task>_<demos>demos_<steps>steps.json`` (per variant:
 success_once mean and spread over seeds, per-seed values with their 95 % intervals) and a PNG. Runs
 live under ``--root``/<the same setting name>/ and resume like ``bench_success``'s; ``--jobs N`` trains
-N loss variants side by side. Pick a setting below the ceiling, or every variant ties: PushCube with
-100 demonstrations saturates near 0.9 in 2,500 steps.
+N loss variants, then re-scores N sampler swaps, side by side. Pick a setting below the ceiling, or
+every variant ties: PushCube with 100 demonstrations saturates near 0.9 in 2,500 steps.
 
     .venv/bin/python -m benchmarks.bench_ablations --task maniskill_pushcube --demos 20 --seeds 0 1 2 --jobs 2
 """
@@ -29,6 +29,7 @@ from benchmarks.sweep import (
     make_demos,
     mean_and_spread,
     rescore,
+    rescore_side_by_side,
     seed_record,
     train,
     train_side_by_side,
@@ -119,12 +120,13 @@ def main(argv: list[str] | None = None) -> int:
         evals = [train(r, data_dir) for r in runs]
         results[name] = {"kind": "loss", "options": LOSS_VARIANTS[name], "evals": evals}
     default_runs = grid["default"]
-    for name, overrides in SAMPLER_VARIANTS.items():
-        task = [o for o in args.extra if o.startswith("task.")]  # re-scoring must see the same task
-        evals = [
-            rescore(r, name, [*overrides, f"eval.episodes={args.eval_episodes}", *task]) for r in default_runs
-        ]
-        results[name] = {"kind": "sampler", "options": overrides, "evals": evals}
+    task = [o for o in args.extra if o.startswith("task.")]  # re-scoring must see the same task
+    swaps = {n: [*o, f"eval.episodes={args.eval_episodes}", *task] for n, o in SAMPLER_VARIANTS.items()}
+    if args.jobs > 1:  # side by side first; the loop below reads them back
+        rescore_side_by_side([(r, n, o) for n, o in swaps.items() for r in default_runs], args.jobs)
+    for name, overrides in swaps.items():
+        evals = [rescore(r, name, overrides) for r in default_runs]
+        results[name] = {"kind": "sampler", "options": SAMPLER_VARIANTS[name], "evals": evals}
     for block in results.values():
         evals = block.pop("evals")
         block["success_once"] = mean_and_spread([e["success_once"] for e in evals])
