@@ -187,7 +187,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--online-steps", type=int, default=6000)
     parser.add_argument("--updates-per-step", type=float, default=0.25)
     parser.add_argument("--online-eval-every", type=int, default=2000)
-    parser.add_argument("--mode", default="distill", choices=("distill", "direct"))
+    parser.add_argument("--mode", default="distill", choices=("distill", "direct", "best_of_n"))
+    parser.add_argument("--num-samples", type=int, default=32, help="best_of_n: chunks drawn per decision")
     parser.add_argument("--alpha", type=float, default=100.0)
     parser.add_argument("--gamma", type=float, default=0.99, help="the critic's per-step discount")
     parser.add_argument(
@@ -220,6 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     shared = [f"task={args.task}", f"seed={args.seed}", f"eval.episodes={args.episodes}", *args.extra]
     ft_over = [
         f"finetune.mode={args.mode}",
+        f"finetune.num_samples={args.num_samples}",
         f"finetune.alpha={args.alpha}",
         f"finetune.gamma={args.gamma}",
         f"finetune.batch_size={args.batch_size}",
@@ -253,18 +255,16 @@ def main(argv: list[str] | None = None) -> int:
     bc_over = [f"data.path={args.data}"] if args.data else [f"demos.num={args.demos}"]
     source = args.data.stem.replace(".", "_") if args.data else f"{args.demos}demos"
     gamma = "" if args.gamma == 0.99 else f"_gamma{args.gamma:g}".replace(".", "p")
+    # what sets the method's strength: the regulariser's weight, or best_of_n's number of draws
+    knob = f"n{args.num_samples}" if args.mode == "best_of_n" else f"alpha{args.alpha:g}"
     warm = (f"_mc{args.critic_pretrain}" if args.critic_pretrain else "") + (
         f"_warm{args.critic_warmup}" if args.critic_warmup else ""
     )
-    tag = (
-        "quick"
-        if args.quick
-        else f"{args.task}_{source}_{args.mode}_alpha{args.alpha:g}{gamma}{warm}_seed{args.seed}"
-    )
+    tag = "quick" if args.quick else f"{args.task}_{source}_{args.mode}_{knob}{gamma}{warm}_seed{args.seed}"
     # one folder per data set and seed: arms with the same settings (BC, continued BC) are shared by
     # invocations that differ in the flow-Q settings; each run's folder names what sets it apart
     root = args.root / (f"quick_{source}" if args.quick else f"{args.task}_{source}_seed{args.seed}")
-    fq_name = f"flowq_{args.mode}_alpha{args.alpha:g}{gamma}{warm}_off{args.offline_steps}".replace(".", "p")
+    fq_name = f"flowq_{args.mode}_{knob}{gamma}{warm}_off{args.offline_steps}".replace(".", "p")
     # every flow-Q update counts, critic-only ones included (the Monte-Carlo ones cost far less than
     # a BC step, so this favours continued BC): continued BC gets as many steps
     critic_only = args.critic_pretrain + args.critic_warmup
@@ -313,7 +313,9 @@ def main(argv: list[str] | None = None) -> int:
         data += f" (rollouts with action noise {data_summary['noise']}, see 'data')"
     setting = (
         f"{args.task}, {data}, BC {args.bc_steps} steps; "
-        f"FlowQ ({args.mode}, alpha {args.alpha}, gamma {args.gamma}) "
+        f"FlowQ ({args.mode}, "
+        + (f"N {args.num_samples}" if args.mode == "best_of_n" else f"alpha {args.alpha}")
+        + f", gamma {args.gamma}) "
         + (f"{args.critic_pretrain} Monte-Carlo critic updates + " if args.critic_pretrain else "")
         + (f"{args.critic_warmup} critic-only updates + " if args.critic_warmup else "")
         + f"{args.offline_steps} offline updates + {args.online_steps} env steps x {args.updates_per_step} "

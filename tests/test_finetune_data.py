@@ -264,7 +264,7 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
     )
     err = capsys.readouterr().err
     assert code == 2
-    assert "finetune.mode='fql': expected one of ['direct', 'distill']" in err
+    assert "finetune.mode='fql': expected one of ['best_of_n', 'direct', 'distill']" in err
     assert "online.mixing='half'" in err and "online.frames_per_round=10" in err
     assert "offline.critic_pretrain=0 + offline.critic_warmup=20: expected two counts >= 0" in err
     assert "summing to at most offline.steps=10" in err

@@ -207,3 +207,48 @@ def test_direct_mode_offline_only_keeps_the_two_step_actor(tmp_path, data_dir, b
     assert actor.sampler.nfe == 2 and cfg.policy.sampler == "two_step"
     assert _differing(state["model"], load_checkpoint(bc_checkpoint)["ema"])
     assert not (run_dir / "eval.json").exists()
+
+
+def test_best_of_n_offline_then_online_acts_with_its_critics_and_evaluates(tmp_path, data_dir, bc_checkpoint):
+    """QC's best-of-N: the critics train (Monte-Carlo, then TD with the best-of-N backup), the BC
+    network does not, the collector and the evaluation act with the selecting actor, and
+    ``l1flow-rl eval`` reloads it as one."""
+    run_dir = tmp_path / "qc"
+    args = [
+        "finetune",
+        f"checkpoint={bc_checkpoint}",
+        f"data_dir={data_dir}",
+        f"run_dir={run_dir}",
+        "finetune.mode=best_of_n",
+        "finetune.num_samples=4",
+        "offline.critic_pretrain=2",
+        "online.steps=40",
+        "online.frames_per_round=40",
+        *[o for o in FT if not o.startswith(("online.steps", "online.frames_per_round"))],
+    ]
+    assert main(args) == 0
+    state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    assert state["progress"]["offline_updates"] == 6 and state["progress"]["env_steps"] == 40
+    metrics = json.loads((run_dir / "history.json").read_text())["history"]["metrics"]
+    assert not any("loss_actor" in m for m in metrics)
+    bc_weights = load_checkpoint(bc_checkpoint)["ema"]
+    inner = {k.removeprefix("actor."): v for k, v in state["model"].items() if k.startswith("actor.")}
+    assert inner and all(torch.equal(v, bc_weights[k]) for k, v in inner.items())  # the BC network, untouched
+    actor, cfg = load_actor(run_dir / "checkpoints" / "latest.pt")
+    assert type(actor).__name__ == "BestOfNActor" and actor.num_samples == 4 and cfg.policy.best_of_n
+    record = json.loads((run_dir / "eval.json").read_text())
+    assert record["episodes"] == 2 and 0.0 <= record["success_once"] <= 1.0
+    assert (
+        main(
+            [
+                "eval",
+                f"checkpoint={run_dir / 'checkpoints' / 'latest.pt'}",
+                f"run_dir={tmp_path / 'ev'}",
+                "eval.episodes=1",
+                "eval.num_envs=1",
+                "task.max_episode_steps=30",
+            ]
+        )
+        == 0
+    )
+    assert json.loads((tmp_path / "ev" / "eval.json").read_text())["episodes"] == 1

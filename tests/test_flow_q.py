@@ -367,8 +367,53 @@ def test_bad_construction_and_input_are_named():
         loss.actor_loss(batch().set("action_chunk", torch.zeros(B, H + 1, A)))
 
 
+def test_best_of_n_target_is_the_max_over_draws_and_no_actor_is_trained():
+    """The TD target backs up the best of N drawn next chunks under the target critics (by hand);
+    draw 0 uses the noise a single draw would, so N = 1 is the direct mode's target and N = 8's is
+    higher; the actor gets no loss and no gradient."""
+    torch.manual_seed(0)
+    actor, nets, gamma, n, b = tiny_actor(), critics(tiny_actor(), 2), 0.9, 8, 32
+    td = batch(b)
+
+    def target_mean(mode: str, draws: int) -> torch.Tensor:
+        loss = FlowQLoss(actor, nets, mode=mode, num_samples=draws, gamma=gamma)
+        torch.manual_seed(1)
+        return loss.qvalue_loss(td)[1]["target_mean"]
+
+    loss = FlowQLoss(actor, nets, mode="best_of_n", num_samples=n, gamma=gamma)
+    policy = actor.policy
+    torch.manual_seed(1)
+    with torch.no_grad():
+        next_obs = policy.as_obs_dict(td["next", "observation"])
+        noise = torch.randn(n * b, H, A)
+        x = loss._clip(loss._sample(policy, torch.cat([next_obs] * n), noise), policy)
+        chunk = policy.action_normalizer.unnormalize(loss._executed(x))
+        q = loss._q(torch.cat([next_obs] * n), chunk, loss.target_qvalue_network_params).mean(0)
+        best = q.reshape(n, b).max(0).values  # draw j of sample i is row j * b + i
+    expected = (td["next", "reward"].reshape(b) + gamma**K * best).mean()
+    torch.testing.assert_close(target_mean("best_of_n", n), expected)
+    torch.testing.assert_close(target_mean("best_of_n", 1), target_mean("direct", 1))
+    assert target_mean("best_of_n", n) > target_mean("best_of_n", 1)
+
+    assert not any(p.requires_grad for p in loss.actor_network_params.values(True, True))
+    out = loss(td)
+    assert out["loss_actor"] == 0 and not out["loss_actor"].requires_grad
+    assert torch.isnan(out["distill_loss"]) and torch.isfinite(out["q_mean"])
+    out["loss_qvalue"].backward()
+    trained = [p for p in loss.qvalue_network_params.values(True, True) if p.requires_grad]
+    assert trained and all(p.grad is not None for p in trained)
+    with pytest.raises(ValueError, match="num_samples must be >= 1"):
+        FlowQLoss(actor, nets, mode="best_of_n", num_samples=0)
+
+
 @pytest.mark.parametrize(
-    "name", ["l1flow_rl.objectives.flow_q", "l1flow_rl.networks.critic", "l1flow_rl.networks.one_step"]
+    "name",
+    [
+        "l1flow_rl.objectives.flow_q",
+        "l1flow_rl.networks.critic",
+        "l1flow_rl.networks.one_step",
+        "l1flow_rl.networks.best_of_n",
+    ],
 )
 def test_docstring_examples_run(name):
     import doctest

@@ -11,13 +11,16 @@ from dataclasses import dataclass, field
 __all__ = ["FINETUNE_MODES", "FinetuneConfig", "OfflineConfig", "OnlineConfig"]
 
 #: ``distill``: FQL's one-step policy mu(s, z) distilled from the L1 Flow 2-NFE chunk and pushed up Q;
-#: ``direct``: the L1 Flow policy itself, Q's gradient through its two network evaluations.
-FINETUNE_MODES = ("distill", "direct")
+#: ``direct``: the L1 Flow policy itself, Q's gradient through its two network evaluations;
+#: ``best_of_n``: Q-chunking's QC, the L1 Flow policy as trained, executing the best of
+#: ``num_samples`` of its chunks under the critics (which back up that choice).
+FINETUNE_MODES = ("distill", "direct", "best_of_n")
 
 
 @dataclass
 class FinetuneConfig:
-    mode: str = "distill"  # distill | direct
+    mode: str = "distill"  # distill | direct | best_of_n
+    num_samples: int = 32  # best_of_n: chunks drawn per decision and per TD target (QC: 32)
     # distill: weight of the distillation loss (FQL: 3-1000 by task family, QC-FQL 100);
     # direct: weight of the L1 Flow BC loss
     alpha: float = 100.0

@@ -13,14 +13,14 @@ from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictParams
 from tensordict.utils import NestedKey
 from torch import Tensor, nn
 
 from l1flow_rl.networks.encoders import ObservationEncoder
 from l1flow_rl.normalizer import Normalizer, NormalizerDict
 
-__all__ = ["ChunkCritic", "chunk_critic_module"]
+__all__ = ["ChunkCritic", "build_critics", "chunk_critic_module", "stack_critics"]
 
 #: A plain tensor observation is this single encoder entry (the policy's convention).
 _STATE_KEY = "state"
@@ -175,3 +175,20 @@ def chunk_critic_module(
     (``action_chunk[..., To-1 : To-1+h, :]``) under its second in_key.
     """
     return TensorDictModule(critic, in_keys=[observation_key, action_key], out_keys=[out_key])
+
+
+def build_critics(
+    policy: nn.Module, *, num: int, action_horizon: int, hidden_dims: Sequence[int]
+) -> list[TensorDictModule]:
+    """``num`` independently initialised critic modules for ``policy`` (:meth:`ChunkCritic.from_policy`)."""
+    return [
+        chunk_critic_module(
+            ChunkCritic.from_policy(policy, action_horizon=action_horizon, hidden_dims=hidden_dims)
+        )
+        for _ in range(num)
+    ]
+
+
+def stack_critics(critics: Sequence[TensorDictModule]) -> TensorDictParams:
+    """The critics' parameters and buffers stacked along a leading ensemble dim (one copy)."""
+    return TensorDictParams(TensorDict.from_modules(*critics).clone())

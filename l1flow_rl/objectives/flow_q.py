@@ -11,6 +11,10 @@ end (``chunk_valid`` False) drop out of the critic loss. The actor objective has
   its BC loss (the distillation target is always detached).
 * ``"direct"``: the L1 Flow policy itself is the actor; Q's gradient flows back through both of its
   network evaluations, and ``alpha`` weighs its L1 Flow BC loss on the batch.
+* ``"best_of_n"`` (Q-chunking's QC): the L1 Flow policy stays as trained (no actor loss); the deployed
+  actor executes the best of ``num_samples`` of its chunks under the critic
+  (:class:`~l1flow_rl.networks.best_of_n.BestOfNActor`), and the TD target backs up that choice:
+  the max over N drawn next chunks of the target critics' value.
 
 ``normalize_q_loss`` scales the Q term by ``lambda = 1 / mean|Q|`` (no gradient through lambda),
 as FQL does.
@@ -36,7 +40,7 @@ from l1flow_rl.policy import ChunkPolicy
 
 __all__ = ["FlowQLoss"]
 
-_MODES = ("distill", "direct")
+_MODES = ("distill", "direct", "best_of_n")
 
 
 def _chunk_policy(module: TensorDictModule, what: str) -> ChunkPolicy:
@@ -68,7 +72,7 @@ class FlowQLoss(LossModule):
 
     Keyword Args:
         teacher_network: ``"distill"`` mode only: the L1 Flow actor whose 2-NFE chunks mu distils.
-        mode: ``"distill"`` (FQL, default) or ``"direct"``.
+        mode: ``"distill"`` (FQL, default), ``"direct"`` or ``"best_of_n"`` (QC).
         num_qvalue_nets: critics in the ensemble (2).
         alpha: ``"distill"``: weight of the distillation loss (FQL uses 3-1000 by task family, QC-FQL
             100); ``"direct"``: weight of the BC loss.
@@ -78,6 +82,7 @@ class FlowQLoss(LossModule):
         gamma: per-step discount; the target uses ``gamma ** h`` (TorchRL's ``steps_to_next_obs``).
             The chunk returns in the data must be discounted with the same gamma.
         rl_horizon: h, executed actions per chunk (default: the actor's ``action_steps``).
+        num_samples: ``"best_of_n"``: N, next chunks drawn per TD target (QC: 32).
         clip_actions: clip the actor's and the teacher's chunks to ``action_bounds``.
         action_bounds: (low, high) in environment units; None clips to the normalised [-1, 1], i.e.
             the demonstrated action range under the default ``"limits"`` normaliser.
@@ -198,6 +203,7 @@ class FlowQLoss(LossModule):
         q_agg: str = "mean",
         gamma: float = 0.99,
         rl_horizon: int | None = None,
+        num_samples: int = 32,
         clip_actions: bool = True,
         action_bounds: tuple[Tensor, Tensor] | None = None,
         bc_loss_kwargs: dict | None = None,
@@ -241,9 +247,11 @@ class FlowQLoss(LossModule):
                     "copy (make_one_step_actor(teacher))"
                 )
         elif teacher_network is not None:
-            raise ValueError(
-                "mode='direct' fine-tunes the L1 Flow actor itself; teacher_network must be None"
-            )
+            raise ValueError(f"mode={mode!r} uses the L1 Flow actor itself; teacher_network must be None")
+        if num_samples < 1:
+            raise ValueError(f"num_samples must be >= 1, got {num_samples}")
+        if mode == "best_of_n":
+            actor_network.requires_grad_(False)  # selected from, never trained
         if train_teacher and mode != "distill":
             raise ValueError("train_teacher applies to mode='distill' only")
 
@@ -257,7 +265,7 @@ class FlowQLoss(LossModule):
         self.mode, self.alpha, self.train_teacher = mode, float(alpha), bool(train_teacher)
         self.normalize_q_loss, self.q_agg, self.rl_horizon = normalize_q_loss, q_agg, h
         self.num_qvalue_nets, self.clip_actions, self.reduction = num_qvalue_nets, clip_actions, reduction
-        self.mask_padding = mask_padding
+        self.mask_padding, self.num_samples = mask_padding, int(num_samples)
 
         self.convert_to_functional(actor_network, "actor_network")
         self.convert_to_functional(
@@ -463,14 +471,18 @@ class FlowQLoss(LossModule):
             else self._flag(tensordict, terminated_key, batch, "terminated").bool()
         )
         with torch.no_grad():
+            # best_of_n backs up the best of N draws; draw 0 uses the noise a single draw would
+            draws = self.num_samples if self.mode == "best_of_n" else 1
+            drawn_obs = torch.cat([next_obs] * draws) if draws > 1 else next_obs
             with self.actor_network_params.to_module(self.actor_network):
                 noise = torch.randn(
-                    n, policy.pred_horizon, policy.action_dim, dtype=chunk.dtype, device=chunk.device
+                    draws * n, policy.pred_horizon, policy.action_dim, dtype=chunk.dtype, device=chunk.device
                 )
-                next_x = self._clip(self._sample(policy, next_obs, noise), policy)
+                next_x = self._clip(self._sample(policy, drawn_obs, noise), policy)
             next_chunk = policy.action_normalizer.unnormalize(self._executed(next_x))
-            next_q = self._q(next_obs, next_chunk, self.target_qvalue_network_params)
+            next_q = self._q(drawn_obs, next_chunk, self.target_qvalue_network_params)
             next_value = next_q.min(0).values if self.q_agg == "min" else next_q.mean(0)
+            next_value = next_value.reshape(draws, n, 1).max(0).values
             steps = tensordict.get(keys.steps_to_next_obs, default=None)
             steps = (
                 torch.full((n, 1), self.rl_horizon, dtype=reward.dtype, device=reward.device)
@@ -516,7 +528,16 @@ class FlowQLoss(LossModule):
         return loss, {k: v.detach() for k, v in diagnostics.items()}
 
     def actor_loss(self, tensordict: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
-        """Actor loss: ``-lambda * Q(s, actor chunk)`` plus the BC / distillation regulariser."""
+        """Actor loss: ``-lambda * Q(s, actor chunk)`` plus the BC / distillation regulariser
+        (``"best_of_n"``: 0, nothing to train; the diagnostics describe one draw of the policy)."""
+        if self.mode == "best_of_n":
+            with torch.no_grad():
+                _, meta = self._actor_terms(tensordict)
+            zero = torch.zeros((), device=meta["q_mean"].device)
+            return zero, {**meta, "distill_loss": zero * float("nan"), "lambda": zero * float("nan")}
+        return self._actor_terms(tensordict)
+
+    def _actor_terms(self, tensordict: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
         policy = self.policy
         obs, chunk, batch = self._read(tensordict)
         n = obs.shape[0]

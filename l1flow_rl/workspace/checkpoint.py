@@ -197,13 +197,30 @@ def check_resumable(
 def load_actor(
     path: str | Path, *, use_ema: bool = True, map_location: str | torch.device = "cpu"
 ) -> tuple[L1FlowActor, DictConfig]:
-    """Rebuild the actor a checkpoint was trained with (EMA weights by default) and its config."""
+    """Rebuild the actor a checkpoint was trained with (EMA weights by default) and its config: an
+    :class:`~l1flow_rl.L1FlowActor`, or for a flow-Q ``best_of_n`` run the
+    :class:`~l1flow_rl.networks.best_of_n.BestOfNActor` around one (its config's ``policy.best_of_n``)."""
     from l1flow_rl.workspace.build import build_actor
 
     state = load_checkpoint(path, map_location)
     cfg = OmegaConf.create(state["config"])
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
     actor = build_actor(cfg.policy, shapes, int(state["action_dim"]), cfg.get("encoder"))
+    best_of_n = cfg.policy.get("best_of_n")
+    if best_of_n:  # a flow-Q best_of_n run: the policy selects with its critics
+        from l1flow_rl.networks.best_of_n import BestOfNActor
+        from l1flow_rl.networks.critic import build_critics, stack_critics
+
+        h = int(best_of_n.rl_horizon)
+        critics = build_critics(
+            actor,
+            num=int(best_of_n.num_qvalue_nets),
+            action_horizon=h,
+            hidden_dims=tuple(best_of_n.critic_hidden_dims),
+        )
+        actor = BestOfNActor(
+            actor, critics[0], stack_critics(critics), num_samples=int(best_of_n.num_samples), rl_horizon=h
+        )
     weights = state["ema"] if use_ema and state.get("ema") is not None else state["model"]
     load_state_into(actor, weights, str(path))
     return actor.to(map_location).eval(), cfg

@@ -68,7 +68,7 @@ class OnlineCollector:
         device: where the env runs (CPU worker processes on a CPU machine).
     """
 
-    def __init__(self, cfg: DictConfig, actor: L1FlowActor, device: torch.device) -> None:
+    def __init__(self, cfg: DictConfig, actor: TensorDictModuleBase, device: torch.device) -> None:
         from torchrl.collectors import Collector
 
         from l1flow_rl.config import TaskConfig

@@ -151,7 +151,14 @@ def run_finetune(cfg: DictConfig) -> int:
         if bc_cfg.get("encoder") is not None and "encoder" in cfg:
             cfg.encoder = OmegaConf.merge(cfg.encoder, bc_cfg.encoder)
     plain = OmegaConf.to_container(cfg, resolve=True)
-    saved_cfg = {**plain, "policy": finetuned_policy_config(plain["policy"], cfg.finetune.mode)}
+    fcfg = cfg.finetune
+    best_of_n = {
+        "num_samples": int(fcfg.num_samples),
+        "rl_horizon": int(fcfg.rl_horizon) or int(cfg.policy.action_steps),
+        "num_qvalue_nets": int(fcfg.num_qvalue_nets),
+        "critic_hidden_dims": list(fcfg.critic_hidden_dims),
+    }
+    saved_cfg = {**plain, "policy": finetuned_policy_config(plain["policy"], fcfg.mode, best_of_n)}
 
     resume_state = None
     if cfg.resume:
@@ -193,12 +200,11 @@ def run_finetune(cfg: DictConfig) -> int:
     logger = make_logger(cfg.train.logger, run_dir, logger_state, run_name="finetune")
     if evaluator is not None:
         evaluator.logger = logger
-    fcfg = cfg.finetune
     obs_shapes = {k: list(v) for k, v in bc_state["obs_shapes"].items()}
 
     def checkpoint_state(online_buffer: str | None) -> dict[str, Any]:
         return {
-            "model": trainer.actor.state_dict(),
+            "model": trainer.policy_actor.state_dict(),
             "ema": None,
             "config": saved_cfg,
             "finetune_config": plain,
@@ -248,7 +254,7 @@ def run_finetune(cfg: DictConfig) -> int:
 
     def evaluate_now(phase: str) -> None:
         nonlocal best
-        result = evaluator(trainer.actor, trainer.updates, split="val")
+        result = evaluator(trainer.policy_actor, trainer.updates, split="val")
         row = {**evaluator.history_row(result), "phase": phase, "env_steps": progress["env_steps"]}
         evals.append(row)
         logger.log_scalar("val/success_once_vs_env_steps", result["success_once"], step=progress["env_steps"])
@@ -305,7 +311,7 @@ def run_finetune(cfg: DictConfig) -> int:
         from l1flow_rl.workspace.collect import OnlineCollector, round_stats
 
         bar = tqdm(total=on.steps, initial=progress["env_steps"], desc="online env steps", dynamic_ncols=True)
-        with OnlineCollector(cfg, trainer.actor, device) as collector:
+        with OnlineCollector(cfg, trainer.policy_actor, device) as collector:
             since_checkpoint, since_eval = 0, progress["env_steps"] % (on.eval_every or 1)
             while progress["env_steps"] < on.steps:
                 data = collector.collect(progress["online_round"])
@@ -350,7 +356,7 @@ def run_finetune(cfg: DictConfig) -> int:
         "online_seconds": round(online_seconds, 1),
     }
     if evaluator is not None:
-        result = evaluator(trainer.actor, trainer.updates, video_dir=run_dir / "videos", split="test")
+        result = evaluator(trainer.policy_actor, trainer.updates, video_dir=run_dir / "videos", split="test")
         evaluator.close()
         evals.append({**evaluator.history_row(result), "phase": "final", "env_steps": progress["env_steps"]})
         result = {

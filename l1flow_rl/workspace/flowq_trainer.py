@@ -9,24 +9,33 @@ from typing import Any
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import unravel_key
 from torch import Tensor
 from torchrl.objectives import SoftUpdate
 
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.config.finetune import FINETUNE_MODES
-from l1flow_rl.networks.critic import ChunkCritic, chunk_critic_module
+from l1flow_rl.networks.best_of_n import BestOfNActor
+from l1flow_rl.networks.critic import build_critics
 from l1flow_rl.networks.one_step import ONE_STEP_SAMPLER, make_one_step_actor
 from l1flow_rl.objectives import FlowQLoss
 
 __all__ = ["FlowQTrainer", "finetuned_policy_config"]
 
 
-def finetuned_policy_config(bc_policy_cfg: dict[str, Any], mode: str) -> dict[str, Any]:
+def finetuned_policy_config(
+    bc_policy_cfg: dict[str, Any], mode: str, best_of_n: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """The policy config that rebuilds the fine-tuned actor (``load_actor`` / ``l1flow-rl eval``):
-    the BC policy's, with the one-step sampler in ``distill`` mode."""
+    the BC policy's, with the one-step sampler in ``distill`` mode, and in ``best_of_n`` mode a
+    ``best_of_n`` block (``num_samples``, ``rl_horizon``, ``num_qvalue_nets``,
+    ``critic_hidden_dims``: what rebuilds the critics the actor selects with)."""
     cfg = copy.deepcopy(bc_policy_cfg)
-    if mode == "distill":
+    if mode == "best_of_n":
+        cfg["name"] = f"{cfg.get('name', 'l1flow')}_qc"
+        cfg["best_of_n"] = dict(best_of_n or {})
+    elif mode == "distill":
         cfg["sampler"], cfg["sampler_kwargs"] = ONE_STEP_SAMPLER[0], dict(ONE_STEP_SAMPLER[1])
         cfg["name"] = f"{cfg.get('name', 'l1flow')}_fql"
     else:
@@ -51,18 +60,15 @@ class FlowQTrainer:
         policy = bc_actor.policy
         h = int(cfg.rl_horizon) or policy.action_steps
         self.reference = copy.deepcopy(bc_actor).requires_grad_(False)  # the BC policy, for BC distance
+        teacher = None
         if cfg.mode == "distill":
             teacher = copy.deepcopy(bc_actor)
             self.actor = make_one_step_actor(teacher, init=cfg.one_step_init)
-        else:
-            teacher = None
-            self.actor = copy.deepcopy(bc_actor).requires_grad_(True)
-        critics = [
-            chunk_critic_module(
-                ChunkCritic.from_policy(policy, action_horizon=h, hidden_dims=tuple(cfg.critic_hidden_dims))
-            )
-            for _ in range(cfg.num_qvalue_nets)
-        ]
+        else:  # direct: trained; best_of_n: drawn from as it is
+            self.actor = copy.deepcopy(bc_actor).requires_grad_(cfg.mode == "direct")
+        critics = build_critics(
+            policy, num=cfg.num_qvalue_nets, action_horizon=h, hidden_dims=tuple(cfg.critic_hidden_dims)
+        )
         self.loss = FlowQLoss(
             self.actor,
             critics,
@@ -75,8 +81,20 @@ class FlowQTrainer:
             q_agg=cfg.q_agg,
             gamma=cfg.gamma,
             rl_horizon=h,
+            num_samples=cfg.num_samples,
         )
         self.rl_horizon = h
+        # the actor that acts (evaluation, collection, checkpoints): best_of_n selects among the
+        # policy's chunks with the critics being trained (their parameters are shared, not copied)
+        self.policy_actor: TensorDictModuleBase = self.actor
+        if cfg.mode == "best_of_n":
+            self.policy_actor = BestOfNActor(
+                self.actor,
+                self.loss.qvalue_network,
+                self.loss.qvalue_network_params,
+                num_samples=cfg.num_samples,
+                rl_horizon=h,
+            )
         # Valid chunks hold exactly h steps of their episode (chunk_valid), so the per-step affine map
         # r -> scale * r + offset turns a discounted chunk return R_h into scale * R_h + offset * sum_i g^i.
         self.reward_scale = float(cfg.reward_scale)
@@ -118,6 +136,7 @@ class FlowQTrainer:
             raise ValueError(f"critic must be 'td' or 'mc', got {critic!r}")
         if critic == "mc" and actor:
             raise ValueError("critic='mc' pretrains the critics alone; pass actor=False")
+        actor = actor and self.cfg.mode != "best_of_n"  # nothing to train but the critics
         batch = self.shape_rewards(batch)
         if critic == "mc":
             loss_q, meta = self.loss.qvalue_regression_loss(batch, self.mc_targets(batch))
@@ -184,8 +203,17 @@ class FlowQTrainer:
 
     @torch.no_grad()
     def bc_distance(self, batch: TensorDictBase, generator: torch.Generator | None = None) -> float:
-        """Mean |fine-tuned chunk - BC chunk| (normalised units, executed steps) from the same noise."""
+        """Mean |fine-tuned chunk - BC chunk| (normalised units, executed steps) from the same noise;
+        ``best_of_n``: the chosen chunk against the first of the N draws (how far selection moves)."""
         loss, policy = self.loss, self.actor.policy
+        if isinstance(self.policy_actor, BestOfNActor):
+            with torch.random.fork_rng(devices=[]):  # off the training RNG stream
+                if generator is not None:
+                    torch.manual_seed(int(torch.randint(2**31, (1,), generator=generator)))
+                observation = batch.get(loss.tensor_keys.observation)
+                chosen, draws, _ = self.policy_actor.select(observation.reshape(-1, *observation.shape[1:]))
+            norm = policy.action_normalizer.normalize
+            return float((norm(chosen) - norm(draws[:, 0])).abs().mean())
         obs = policy.as_obs_dict(batch.get(loss.tensor_keys.observation))
         shape = (obs.shape[0], policy.pred_horizon, policy.action_dim)
         device = policy.action_normalizer.scale.device
