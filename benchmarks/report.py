@@ -148,6 +148,29 @@ def render_success(d: dict) -> str:
     )
     if notes:
         text += " " + "; ".join(notes) + " (its test figures use its own sampler)."
+    a = d.get("args") or {}
+    if a.get("demos") and a.get("steps"):
+        labels = {label for block in d["tasks"].values() for label in block}
+        legend = [
+            meaning
+            for suffix, meaning in (
+                (
+                    "_maniskill_protocol",
+                    "`_maniskill_protocol`: re-scored under ManiSkill's evaluation protocol",
+                ),
+                ("_ddim16", "`ddpm_ddim16`: the DDPM network under DDIM-16"),
+            )
+            if any(suffix in label for label in labels)
+        ]
+        text += (
+            f"\n\nSetting: {a['demos']} demonstrations, {a['steps']:,} training steps, validation every "
+            f"{a.get('eval_every', '?'):,} steps; the test figures are the validation-chosen checkpoint's on "
+            f"{a.get('eval_episodes', '?')} test episodes per seed"
+            + (f" ({'; '.join(legend)})" if legend else "")
+            + ". Runs shared the cores with other runs, so CPU seconds, not wall time, are the budget figure."
+        )
+        if a.get("extra"):
+            text += " Overrides for every run: " + ", ".join(f"`{o}`" for o in a["extra"]) + "."
     return text
 
 
