@@ -41,12 +41,13 @@ def test_quick_mode_runs_every_arm_and_saves_json_and_plot(tmp_path):
         assert 0.0 <= arm["success_once"] <= 1.0 and arm["episodes"] == 2
     assert figures["arms"]["flowq_online"]["env_steps"] == 40
     assert figures["arms"]["flowq_offline"]["env_steps"] == 0
-    # BC + critic warm-up + offline + online updates: every flow-Q update is matched by a BC step
+    # BC + Monte-Carlo pretraining + critic warm-up + offline + online updates: every flow-Q update is
+    # matched by a BC step
     assert figures["budget"]["critic_warmup_updates"] == 2
     assert figures["budget"]["critic_pretrain_updates"] == 1
-    assert figures["budget"]["bc_continued_steps"] == 20 + 2 + 4 + 4
-    assert figures["arms"]["bc_continued"]["updates"] == 30
-    assert figures["arms"]["flowq_offline"]["updates"] == 6
+    assert figures["budget"]["bc_continued_steps"] == 20 + 1 + 2 + 4 + 4
+    assert figures["arms"]["bc_continued"]["updates"] == 31
+    assert figures["arms"]["flowq_offline"]["updates"] == 7
     curve = figures["online_curve"][0]
     assert [e["env_steps"] for e in curve["evaluations"] if e["phase"] == "online"] == [20]
     assert out.with_suffix(".png").stat().st_size > 1000
