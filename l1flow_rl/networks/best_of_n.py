@@ -36,6 +36,9 @@ class BestOfNActor(TensorDictModuleBase):
         num_samples: N, chunks drawn per observation.
         rl_horizon: h, the executed steps the critic reads (the first h of the window).
 
+    Under ``ExplorationType.DETERMINISTIC`` every draw starts from zero noise, so the N draws coincide
+    and the choice is the policy's own deterministic chunk.
+
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict
