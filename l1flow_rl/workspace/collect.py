@@ -15,10 +15,9 @@ from typing import Any
 import torch
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import MultiStepActorWrapper
-
-from l1flow_rl.actor import L1FlowActor
 
 __all__ = ["OnlineCollector", "round_stats", "single_frames"]
 
