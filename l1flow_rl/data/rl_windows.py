@@ -69,13 +69,15 @@ def read_rl_targets(
     length = (end - start).unsqueeze(1)
     rel = (t - start).unsqueeze(1)  # the current step inside its episode
 
-    # the chunk return: rewards of the executed steps that lie inside the episode
-    steps = torch.arange(h)
-    inside = rel + steps < length
-    rows = torch.minimum(t.unsqueeze(1) + steps, end.unsqueeze(1) - 1)
-    rewards = gather(data.get(layout.reward_key), rows).reshape(batch, h).to(torch.float64)
-    discount = gamma ** steps.to(torch.float64)
-    chunk_return = (rewards * discount * inside).sum(1, keepdim=True).to(torch.float32)
+    # the discounted rewards from t to the episode's end, over the longest remainder in the batch (one
+    # gather): their sum is the return to go, their first h the chunk return (steps past h, or past
+    # the episode's end, are out of the chunk)
+    span = torch.arange(int((length - rel).max()))
+    rows = torch.minimum(t.unsqueeze(1) + span, end.unsqueeze(1) - 1)
+    rewards = gather(data.get(layout.reward_key), rows).reshape(batch, span.numel()).to(torch.float64)
+    discounted = rewards * gamma ** span.to(torch.float64) * (rel + span < length)
+    chunk_return = discounted[:, :h].sum(1, keepdim=True).to(torch.float32)
+    return_to_go = discounted.sum(1, keepdim=True)
 
     # the observation history at t+h; step L (and past it) is the final observation
     hist = (rel + h - to + 1 + torch.arange(to)).clamp(min=0)
@@ -90,14 +92,7 @@ def read_rl_targets(
         observations = _where_rows(at_end, final, observations)
 
     episode_terminated = gather(data.get(("next", "terminated")), end - 1).reshape(batch, 1).bool()
-
-    # the return to the episode's end, over the longest remainder in the batch
-    span = torch.arange(int((length - rel).max()))
-    left = rel + span < length
-    rows = torch.minimum(t.unsqueeze(1) + span, end.unsqueeze(1) - 1)
-    rewards = gather(data.get(layout.reward_key), rows).reshape(batch, span.numel()).to(torch.float64)
-    return_to_go = (rewards * gamma ** span.to(torch.float64) * left).sum(1, keepdim=True)
-    last_reward = gather(data.get(layout.reward_key), end - 1).reshape(batch, 1)
+    last_reward = rewards.gather(1, length - rel - 1)  # r_{L-1}, the remainder's last step
     done = rel + h >= length
     valid = rel + h <= length
     if not final_observation_known:
