@@ -123,13 +123,8 @@ def train_side_by_side(runs: Sequence[Run], data_dir: Path, jobs: int) -> None:
     """Train the unfinished ``runs`` ``jobs`` at a time, cores/jobs torch threads each (small networks
     use several cores poorly). Make the runs' shared demonstrations first (``make_demos``): runs
     making the same file at once would race."""
-    pending = [r for r in runs if not r.done]
-    threads = max(1, (os.cpu_count() or 1) // jobs)
-    with ThreadPoolExecutor(jobs) as pool:
-        futures = [pool.submit(train, r, data_dir, threads) for r in pending]
-    failed = [f.exception() for f in futures if f.exception()]
-    if failed:
-        raise RuntimeError(f"{len(failed)} run(s) failed: {failed[0]}")
+    threads = _threads(jobs)
+    _side_by_side([(train, (r, data_dir, threads)) for r in runs if not r.done], jobs, "run(s)")
 
 
 def rescore(
@@ -161,12 +156,23 @@ def rescore(
 def rescore_side_by_side(jobs: Sequence[tuple[Run, str, Sequence[str]]], workers: int) -> None:
     """Run the re-scorings ``(run, name, overrides)`` ``workers`` at a time (each is one process on
     cores/workers threads); the results land on disk, where ``rescore`` then reads them back."""
-    threads = max(1, (os.cpu_count() or 1) // workers)
+    threads = _threads(workers)
+    calls = [(rescore, (run, name, overrides, None, threads)) for run, name, overrides in jobs]
+    _side_by_side(calls, workers, "re-scoring(s)")
+
+
+def _threads(workers: int) -> int:
+    return max(1, (os.cpu_count() or 1) // workers)
+
+
+def _side_by_side(calls: Sequence[tuple[Any, tuple]], workers: int, what: str) -> None:
+    """Run ``fn(*args)`` for every call, ``workers`` at a time (each starts its own process), and
+    raise once all are done if any failed."""
     with ThreadPoolExecutor(workers) as pool:
-        futures = [pool.submit(rescore, run, name, overrides, None, threads) for run, name, overrides in jobs]
+        futures = [pool.submit(fn, *args) for fn, args in calls]
     failed = [f.exception() for f in futures if f.exception()]
     if failed:
-        raise RuntimeError(f"{len(failed)} re-scoring(s) failed: {failed[0]}")
+        raise RuntimeError(f"{len(failed)} {what} failed: {failed[0]}")
 
 
 def read_history(run: Run, split: str = "val") -> list[dict[str, Any]]:
