@@ -40,19 +40,21 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 from benchmarks.common import format_table, machine_info, save_results
-from benchmarks.sweep import Run, _cli, rescore, train  # _cli: the shared subprocess runner
+from benchmarks.sweep import Run, _cli, _threads, rescore, train  # _cli: the shared subprocess runner
 
 #: the distill arm's actor samples in one network evaluation; on noisy data that alone changes success
 #: (a one-step chunk is the network's estimate from pure noise, which averages the demonstrated noise
 #: away), so the BC arms are also scored under it: the gain credited to Q is over the better of the two
 ONE_STEP = ["policy.sampler=euler", "policy.sampler_kwargs.steps=1"]
+
+#: every imitation arm: the BC start and continued BC, each under its own and the one-step sampler
+BC_ARMS = ("bc", "bc_one_step", "bc_continued", "bc_continued_one_step")
 
 #: the arms that start from the BC checkpoint (independent of each other: --jobs runs them side by side)
 ARMS = ("flowq_offline", "flowq_online", "bc_continued")
@@ -189,6 +191,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--online-eval-every", type=int, default=2000)
     parser.add_argument("--mode", default="distill", choices=("distill", "direct", "best_of_n"))
     parser.add_argument("--num-samples", type=int, default=32, help="best_of_n: chunks drawn per decision")
+    parser.add_argument(
+        "--backup",
+        default="max",
+        choices=("max", "mean"),
+        help="the TD target's value of the next state over drawn chunks (best_of_n: QC's max, or the mean)",
+    )
+    parser.add_argument(
+        "--backup-samples", type=int, default=0, help="chunks drawn per TD target (0: the mode's default)"
+    )
     parser.add_argument("--alpha", type=float, default=100.0)
     parser.add_argument("--gamma", type=float, default=0.99, help="the critic's per-step discount")
     parser.add_argument(
@@ -222,6 +233,8 @@ def main(argv: list[str] | None = None) -> int:
     ft_over = [
         f"finetune.mode={args.mode}",
         f"finetune.num_samples={args.num_samples}",
+        f"finetune.backup={args.backup}",
+        f"finetune.backup_samples={args.backup_samples}",
         f"finetune.alpha={args.alpha}",
         f"finetune.gamma={args.gamma}",
         f"finetune.batch_size={args.batch_size}",
@@ -257,6 +270,8 @@ def main(argv: list[str] | None = None) -> int:
     gamma = "" if args.gamma == 0.99 else f"_gamma{args.gamma:g}".replace(".", "p")
     # what sets the method's strength: the regulariser's weight, or best_of_n's number of draws
     knob = f"n{args.num_samples}" if args.mode == "best_of_n" else f"alpha{args.alpha:g}"
+    if args.backup != "max" or args.backup_samples:  # the default (QC's max backup) keeps its old names
+        knob += f"_{args.backup}" + (f"{args.backup_samples}" if args.backup_samples else "")
     warm = (f"_mc{args.critic_pretrain}" if args.critic_pretrain else "") + (
         f"_warm{args.critic_warmup}" if args.critic_warmup else ""
     )
@@ -292,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, dict[str, Any]] = {}
     results["bc"] = _record(train(bc_run, args.data_dir), bc_run.run_dir)
     checkpoint = bc_run.run_dir / "checkpoints" / "latest.pt"
-    threads = max(1, (os.cpu_count() or 1) // args.jobs) if args.jobs > 1 else None
+    threads = _threads(args.jobs) if args.jobs > 1 else None
 
     def arm(name: str) -> dict[str, Any]:
         run = runs[name]
@@ -315,6 +330,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.task}, {data}, BC {args.bc_steps} steps; "
         f"FlowQ ({args.mode}, "
         + (f"N {args.num_samples}" if args.mode == "best_of_n" else f"alpha {args.alpha}")
+        + (f", {args.backup} backup" if args.backup != "max" else "")
+        + (f" over {args.backup_samples} draws" if args.backup_samples else "")
         + f", gamma {args.gamma}) "
         + (f"{args.critic_pretrain} Monte-Carlo critic updates + " if args.critic_pretrain else "")
         + (f"{args.critic_warmup} critic-only updates + " if args.critic_warmup else "")
@@ -339,6 +356,9 @@ def main(argv: list[str] | None = None) -> int:
         - results["bc_continued"]["success_once"],
         "gain_over_best_continued_bc": results["flowq_online"]["success_once"]
         - max(results["bc_continued"]["success_once"], results["bc_continued_one_step"]["success_once"]),
+        # offline FlowQ against the best any BC arm scored, under either sampler (the start included)
+        "gain_offline_over_best_bc": results["flowq_offline"]["success_once"]
+        - max(results[a]["success_once"] for a in BC_ARMS),
         "online_curve": _online_curve(runs["flowq_online"].run_dir),
         "runs": {name: str(run.run_dir) for name, run in runs.items()},
         "data": data_summary,

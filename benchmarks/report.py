@@ -375,6 +375,9 @@ def render_flow_q(d: dict) -> str:
     note = f"Setting: {d['setting']}. Gain of online FlowQ over continued BC: {_num(gain)}"
     best = d.get("gain_over_best_continued_bc")
     note += "." if best is None else f"; over the better of its two samplers: {_num(best)}."
+    offline = d.get("gain_offline_over_best_bc")
+    if offline is not None:
+        note += f" Offline FlowQ over the best BC arm (either sampler, the start included): {_num(offline)}."
     return _table(header, rows) + "\n\n" + note
 
 

@@ -162,7 +162,9 @@ def rescore_side_by_side(jobs: Sequence[tuple[Run, str, Sequence[str]]], workers
 
 
 def _threads(workers: int) -> int:
-    return max(1, (os.cpu_count() or 1) // workers)
+    # the cores this process may use (taskset, cgroups), not the machine's: a sweep pinned to one core
+    # gives its runs one thread each
+    return max(1, len(os.sched_getaffinity(0)) // workers)
 
 
 def _side_by_side(calls: Sequence[tuple[Any, tuple]], workers: int, what: str) -> None:

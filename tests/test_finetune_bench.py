@@ -65,6 +65,12 @@ def test_quick_mode_runs_every_arm_and_saves_json_and_plot(tmp_path):
     assert figures["gain_over_best_continued_bc"] == pytest.approx(
         figures["arms"]["flowq_online"]["success_once"] - best
     )
+    best_bc = max(figures["arms"][a]["success_once"] for a in bench_flow_q.BC_ARMS)
+    assert figures["gain_offline_over_best_bc"] == pytest.approx(
+        figures["arms"]["flowq_offline"]["success_once"] - best_bc
+    )
+    offline_gain = report._num(figures["gain_offline_over_best_bc"])
+    assert f"Offline FlowQ over the best BC arm (either sampler, the start included): {offline_gain}" in text
 
 
 def test_noisy_rollouts_are_recorded_by_maniskill_and_train_every_arm(tmp_path):

@@ -406,6 +406,43 @@ def test_best_of_n_target_is_the_max_over_draws_and_no_actor_is_trained():
         FlowQLoss(actor, nets, mode="best_of_n", num_samples=0)
 
 
+def test_mean_backup_is_the_average_over_draws_of_the_policy():
+    """backup="mean" values the next state as the mean over the drawn chunks' target values (by
+    hand); backup_samples sets the number of draws in any mode, and one draw of either backup is the
+    direct mode's target; bad values are refused."""
+    torch.manual_seed(0)
+    actor, nets, gamma, n, b = tiny_actor(), critics(tiny_actor(), 2), 0.9, 6, 16
+    td = batch(b)
+
+    def target(**kwargs) -> torch.Tensor:
+        loss = FlowQLoss(actor, nets, gamma=gamma, **kwargs)
+        torch.manual_seed(1)
+        return loss.qvalue_loss(td)[1]["target_mean"]
+
+    loss = FlowQLoss(actor, nets, mode="best_of_n", num_samples=n, backup="mean", gamma=gamma)
+    assert loss.backup_samples == n
+    policy = actor.policy
+    torch.manual_seed(1)
+    with torch.no_grad():
+        next_obs = torch.cat([policy.as_obs_dict(td["next", "observation"])] * n)
+        x = loss._clip(loss._sample(policy, next_obs, torch.randn(n * b, H, A)), policy)
+        chunk = policy.action_normalizer.unnormalize(loss._executed(x))
+        q = loss._q(next_obs, chunk, loss.target_qvalue_network_params).mean(0).reshape(n, b)
+    mean_target = (td["next", "reward"].reshape(b) + gamma**K * q.mean(0)).mean()
+    max_target = (td["next", "reward"].reshape(b) + gamma**K * q.max(0).values).mean()
+    torch.testing.assert_close(target(mode="best_of_n", num_samples=n, backup="mean"), mean_target)
+    torch.testing.assert_close(target(mode="direct", backup="mean", backup_samples=n), mean_target)
+    torch.testing.assert_close(target(mode="direct", backup_samples=n), max_target)
+    assert mean_target < max_target
+    one = target(mode="direct")
+    torch.testing.assert_close(target(mode="best_of_n", num_samples=n, backup="mean", backup_samples=1), one)
+    torch.testing.assert_close(target(mode="best_of_n", num_samples=n, backup_samples=1), one)
+    with pytest.raises(ValueError, match="backup must be one of"):
+        FlowQLoss(actor, nets, mode="direct", backup="min")
+    with pytest.raises(ValueError, match="backup_samples must be >= 1"):
+        FlowQLoss(actor, nets, mode="direct", backup_samples=0)
+
+
 @pytest.mark.parametrize(
     "name",
     [

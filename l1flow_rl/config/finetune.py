@@ -21,6 +21,11 @@ FINETUNE_MODES = ("distill", "direct", "best_of_n")
 class FinetuneConfig:
     mode: str = "distill"  # distill | direct | best_of_n
     num_samples: int = 32  # best_of_n: chunks drawn per decision and per TD target (QC: 32)
+    # How the TD target values the next state from drawn chunks of the policy: max (QC's expected-max,
+    # an optimistic value of the selecting policy) | mean (the value of the policy as it samples: a
+    # SARSA-like critic that best_of_n's selection improves on once)
+    backup: str = "max"
+    backup_samples: int = 0  # chunks drawn per TD target; 0: num_samples in best_of_n, else 1
     # distill: weight of the distillation loss (FQL: 3-1000 by task family, QC-FQL 100);
     # direct: weight of the L1 Flow BC loss
     alpha: float = 100.0
@@ -91,6 +96,16 @@ def _check_online(cfg, command: str) -> list[str]:
     return problems
 
 
+def _check_backup(cfg, command: str) -> list[str]:
+    ft = cfg.get("finetune")
+    if command != "finetune" or ft is None or ft.get("backup_samples", 0) >= 0:
+        return []
+    return [
+        f"finetune.backup_samples={ft.backup_samples}: expected chunks drawn per TD target >= 1, or 0 "
+        "for the mode's default (num_samples in best_of_n, else 1)"
+    ]
+
+
 def _check_offline(cfg, command: str) -> list[str]:
     off = cfg.get("offline")
     if command != "finetune" or off is None:
@@ -110,10 +125,12 @@ def _register_choices() -> None:
 
     register_choices("finetune.mode", lambda: FINETUNE_MODES)
     register_choices("finetune.q_agg", lambda: ("mean", "min"))
+    register_choices("finetune.backup", lambda: ("max", "mean"))
     register_choices("finetune.one_step_init", lambda: ("teacher", "scratch"))
     register_choices("online.mixing", lambda: ("seed", "balanced"))
     register_check(_check_online)
     register_check(_check_offline)
+    register_check(_check_backup)
 
 
 _register_choices()  # a bad value fails at config time, naming the field (l1flow_rl.config.validate)

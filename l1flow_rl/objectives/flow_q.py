@@ -14,7 +14,9 @@ end (``chunk_valid`` False) drop out of the critic loss. The actor objective has
 * ``"best_of_n"`` (Q-chunking's QC): the L1 Flow policy stays as trained (no actor loss); the deployed
   actor executes the best of ``num_samples`` of its chunks under the critic
   (:class:`~l1flow_rl.networks.best_of_n.BestOfNActor`), and the TD target backs up that choice:
-  the max over N drawn next chunks of the target critics' value.
+  the max over N drawn next chunks of the target critics' value (``backup="max"``), or the mean
+  over the draws (``backup="mean"``: the value of the policy as it samples, a SARSA-like critic that
+  the selection then improves on once, as in one-step offline RL).
 
 ``normalize_q_loss`` scales the Q term by ``lambda = 1 / mean|Q|`` (no gradient through lambda),
 as FQL does.
@@ -41,6 +43,7 @@ from l1flow_rl.policy import ChunkPolicy
 __all__ = ["FlowQLoss"]
 
 _MODES = ("distill", "direct", "best_of_n")
+_BACKUPS = ("max", "mean")
 
 
 def _chunk_policy(module: TensorDictModule, what: str) -> ChunkPolicy:
@@ -82,7 +85,13 @@ class FlowQLoss(LossModule):
         gamma: per-step discount; the target uses ``gamma ** h`` (TorchRL's ``steps_to_next_obs``).
             The chunk returns in the data must be discounted with the same gamma.
         rl_horizon: h, executed actions per chunk (default: the actor's ``action_steps``).
-        num_samples: ``"best_of_n"``: N, next chunks drawn per TD target (QC: 32).
+        num_samples: ``"best_of_n"``: N, chunks drawn per decision and by default per TD target
+            (QC: 32).
+        backup: how the TD target values the next state from its drawn chunks: ``"max"`` (QC's
+            expected-max backup; with one draw, the actor's own chunk) or ``"mean"`` (the expected
+            value of the actor's draws: Q of the policy as it samples, no maximisation bias).
+        backup_samples: chunks drawn per TD target (default: ``num_samples`` in ``"best_of_n"``
+            mode, 1 otherwise).
         clip_actions: clip the actor's and the teacher's chunks to ``action_bounds``.
         action_bounds: (low, high) in environment units; None clips to the normalised [-1, 1], i.e.
             the demonstrated action range under the default ``"limits"`` normaliser.
@@ -204,6 +213,8 @@ class FlowQLoss(LossModule):
         gamma: float = 0.99,
         rl_horizon: int | None = None,
         num_samples: int = 32,
+        backup: str = "max",
+        backup_samples: int | None = None,
         clip_actions: bool = True,
         action_bounds: tuple[Tensor, Tensor] | None = None,
         bc_loss_kwargs: dict | None = None,
@@ -250,6 +261,12 @@ class FlowQLoss(LossModule):
             raise ValueError(f"mode={mode!r} uses the L1 Flow actor itself; teacher_network must be None")
         if num_samples < 1:
             raise ValueError(f"num_samples must be >= 1, got {num_samples}")
+        if backup not in _BACKUPS:
+            raise ValueError(f"backup must be one of {_BACKUPS}, got {backup!r}")
+        if backup_samples is None:
+            backup_samples = num_samples if mode == "best_of_n" else 1
+        if backup_samples < 1:
+            raise ValueError(f"backup_samples must be >= 1, got {backup_samples}")
         if mode == "best_of_n":
             actor_network.requires_grad_(False)  # selected from, never trained
         if train_teacher and mode != "distill":
@@ -266,6 +283,7 @@ class FlowQLoss(LossModule):
         self.normalize_q_loss, self.q_agg, self.rl_horizon = normalize_q_loss, q_agg, h
         self.num_qvalue_nets, self.clip_actions, self.reduction = num_qvalue_nets, clip_actions, reduction
         self.mask_padding, self.num_samples = mask_padding, int(num_samples)
+        self.backup, self.backup_samples = backup, int(backup_samples)
 
         self.convert_to_functional(actor_network, "actor_network")
         self.convert_to_functional(
@@ -471,8 +489,9 @@ class FlowQLoss(LossModule):
             else self._flag(tensordict, terminated_key, batch, "terminated").bool()
         )
         with torch.no_grad():
-            # best_of_n backs up the best of N draws; draw 0 uses the noise a single draw would
-            draws = self.num_samples if self.mode == "best_of_n" else 1
+            # the next state's value over `draws` drawn chunks (their max or mean); draw 0 uses the
+            # noise a single draw would
+            draws = self.backup_samples
             drawn_obs = torch.cat([next_obs] * draws) if draws > 1 else next_obs
             with self.actor_network_params.to_module(self.actor_network):
                 noise = torch.randn(
@@ -482,7 +501,8 @@ class FlowQLoss(LossModule):
             next_chunk = policy.action_normalizer.unnormalize(self._executed(next_x))
             next_q = self._q(drawn_obs, next_chunk, self.target_qvalue_network_params)
             next_value = next_q.min(0).values if self.q_agg == "min" else next_q.mean(0)
-            next_value = next_value.reshape(draws, n, 1).max(0).values
+            next_value = next_value.reshape(draws, n, 1)
+            next_value = next_value.max(0).values if self.backup == "max" else next_value.mean(0)
             steps = tensordict.get(keys.steps_to_next_obs, default=None)
             steps = (
                 torch.full((n, 1), self.rl_horizon, dtype=reward.dtype, device=reward.device)

@@ -82,6 +82,8 @@ class FlowQTrainer:
             gamma=cfg.gamma,
             rl_horizon=h,
             num_samples=cfg.num_samples,
+            backup=cfg.backup,
+            backup_samples=int(cfg.backup_samples) or None,
         )
         self.rl_horizon = h
         # the actor that acts (evaluation, collection, checkpoints): best_of_n selects among the
