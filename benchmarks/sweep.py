@@ -143,7 +143,13 @@ def rescore(
     ckpt = ckpt_dir / checkpoint
     out = run.run_dir / f"rescore_{name}"
     saved = out / "eval.json"
-    if saved.is_file() and Path(json.loads(saved.read_text()).get("checkpoint", "")).name != checkpoint:
+    # a record restored by benchmarks.archive comes without its network: read it as it is
+    restored = saved.is_file() and not ckpt.is_file()
+    if (
+        saved.is_file()
+        and not restored
+        and Path(json.loads(saved.read_text()).get("checkpoint", "")).name != checkpoint
+    ):
         saved.unlink()  # made from another checkpoint (older sweeps re-scored latest.pt)
     if not saved.is_file():
         env = {"OMP_NUM_THREADS": str(threads)} if threads else None

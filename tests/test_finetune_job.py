@@ -8,6 +8,7 @@ import math
 
 import pytest
 import torch
+import yaml
 
 pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
 
@@ -210,8 +211,8 @@ def test_direct_mode_offline_only_keeps_the_two_step_actor(tmp_path, data_dir, b
 
 
 def test_best_of_n_offline_then_online_acts_with_its_critics_and_evaluates(tmp_path, data_dir, bc_checkpoint):
-    """QC's best-of-N: the critics train (Monte-Carlo, then TD with the best-of-N backup), the BC
-    network does not, the collector and the evaluation act with the selecting actor, and
+    """QC's best-of-N: the critics train (Monte-Carlo, then TD with the mean backup over 2 draws),
+    the BC network does not, the collector and the evaluation act with the selecting actor, and
     ``l1flow-rl eval`` reloads it as one."""
     run_dir = tmp_path / "qc"
     args = [
@@ -221,6 +222,8 @@ def test_best_of_n_offline_then_online_acts_with_its_critics_and_evaluates(tmp_p
         f"run_dir={run_dir}",
         "finetune.mode=best_of_n",
         "finetune.num_samples=4",
+        "finetune.backup=mean",
+        "finetune.backup_samples=2",
         "offline.critic_pretrain=2",
         "online.steps=40",
         "online.frames_per_round=40",
@@ -231,6 +234,8 @@ def test_best_of_n_offline_then_online_acts_with_its_critics_and_evaluates(tmp_p
     assert state["progress"]["offline_updates"] == 6 and state["progress"]["env_steps"] == 40
     metrics = json.loads((run_dir / "history.json").read_text())["history"]["metrics"]
     assert not any("loss_actor" in m for m in metrics)
+    saved = yaml.safe_load((run_dir / "config.yaml").read_text())["finetune"]
+    assert (saved["backup"], saved["backup_samples"]) == ("mean", 2)
     bc_weights = load_checkpoint(bc_checkpoint)["ema"]
     inner = {k.removeprefix("actor."): v for k, v in state["model"].items() if k.startswith("actor.")}
     assert inner and all(torch.equal(v, bc_weights[k]) for k, v in inner.items())  # the BC network, untouched
