@@ -201,9 +201,15 @@ def main(argv: list[str] | None = None) -> int:
     for task, by_policy in grid.items():
         results[task] = {}
         for policy, runs in by_policy.items():
-            evaluations: dict[str, list[dict[str, Any]]] = {policy: [train(r, root / "data") for r in runs]}
-            for label, name, overrides in plans[task][policy]:
-                evaluations[label] = [rescore(r, name, overrides) for r in runs]
+            # each run's re-scorings follow its training: a sweep stopped midway leaves whole runs,
+            # which benchmarks.archive can keep without their checkpoints
+            evaluations: dict[str, list[dict[str, Any]]] = {policy: []}
+            for label, _, _ in plans[task][policy]:
+                evaluations[label] = []
+            for r in runs:
+                evaluations[policy].append(train(r, root / "data"))
+                for label, name, overrides in plans[task][policy]:
+                    evaluations[label].append(rescore(r, name, overrides))
             metric = headline_metric(evaluations[policy][0])
             curves = [[(e["step"], e.get(metric, e["success_once"])) for e in read_history(r)] for r in runs]
             for label, evals in evaluations.items():

@@ -151,6 +151,11 @@ def rescore(
         and Path(json.loads(saved.read_text()).get("checkpoint", "")).name != checkpoint
     ):
         saved.unlink()  # made from another checkpoint (older sweeps re-scored latest.pt)
+    if not saved.is_file() and not ckpt.is_file():
+        raise FileNotFoundError(
+            f"{run.name}: no {ckpt} to re-score ({name}); a run restored by benchmarks.archive keeps its "
+            f"records only: remove {run.run_dir} to train it again"
+        )
     if not saved.is_file():
         env = {"OMP_NUM_THREADS": str(threads)} if threads else None
         code = _cli(["eval", f"checkpoint={ckpt}", f"run_dir={out}", *overrides], run.log, env)

@@ -67,6 +67,8 @@ def test_save_then_restore_brings_back_the_records_but_not_the_checkpoints(tmp_p
     run = Run("l1flow", OVERRIDES, run_dir)
     assert run.done and train(run, tmp_path / "data")["success_once"] == 0.7
     assert rescore(run, "euler1", ["policy.sampler=euler"])["success_once"] == 0.35
+    with pytest.raises(FileNotFoundError, match=r"no .*best.pt|no .*latest.pt"):
+        rescore(run, "ddim16", ["policy.sampler=ddim"])  # a new re-scoring needs the network
 
 
 def test_restore_keeps_a_live_run_and_refuses_what_it_cannot_place(tmp_path, monkeypatch):
