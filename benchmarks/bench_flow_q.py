@@ -194,8 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--backup",
         default="max",
-        choices=("max", "mean"),
-        help="the TD target's value of the next state over drawn chunks (best_of_n: QC's max, or the mean)",
+        choices=("max", "mean", "one_step"),
+        help="the TD target's value of the next state: max or mean over drawn chunks, or the one-step chunk",
     )
     parser.add_argument(
         "--backup-samples", type=int, default=0, help="chunks drawn per TD target (0: the mode's default)"

@@ -270,5 +270,5 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
     assert "online.mixing='half'" in err and "online.frames_per_round=10" in err
     assert "offline.critic_pretrain=0 + offline.critic_warmup=20: expected two counts >= 0" in err
     assert "summing to at most offline.steps=10" in err
-    assert "finetune.backup='min': expected one of ['max', 'mean']" in err
+    assert "finetune.backup='min': expected one of ['max', 'mean', 'one_step']" in err
     assert "finetune.backup_samples=-1: expected chunks drawn per TD target >= 1" in err

@@ -437,6 +437,19 @@ def test_mean_backup_is_the_average_over_draws_of_the_policy():
     one = target(mode="direct")
     torch.testing.assert_close(target(mode="best_of_n", num_samples=n, backup="mean", backup_samples=1), one)
     torch.testing.assert_close(target(mode="best_of_n", num_samples=n, backup_samples=1), one)
+    # one_step: the network read once at t = 0 from the same noise (one draw unless told otherwise)
+    loss = FlowQLoss(actor, nets, mode="best_of_n", num_samples=n, backup="one_step", gamma=gamma)
+    assert loss.backup_samples == 1
+    torch.manual_seed(1)
+    with torch.no_grad():
+        next_obs = policy.as_obs_dict(td["next", "observation"])
+        cond = policy.encode(next_obs)
+        x = policy.denoise(torch.randn(b, H, A), torch.zeros(b), cond).clamp(-1, 1)
+        chunk = policy.action_normalizer.unnormalize(loss._executed(x))
+        q = loss._q(next_obs, chunk, loss.target_qvalue_network_params).mean(0).reshape(b)
+    one_step_target = (td["next", "reward"].reshape(b) + gamma**K * q).mean()
+    torch.testing.assert_close(target(mode="best_of_n", num_samples=n, backup="one_step"), one_step_target)
+    assert not torch.allclose(one_step_target, one)  # not the two-step chunk
     with pytest.raises(ValueError, match="backup must be one of"):
         FlowQLoss(actor, nets, mode="direct", backup="min")
     with pytest.raises(ValueError, match="backup_samples must be >= 1"):

@@ -23,9 +23,11 @@ class FinetuneConfig:
     num_samples: int = 32  # best_of_n: chunks drawn per decision and per TD target (QC: 32)
     # How the TD target values the next state from drawn chunks of the policy: max (QC's expected-max,
     # an optimistic value of the selecting policy) | mean (the value of the policy as it samples: a
-    # SARSA-like critic that best_of_n's selection improves on once)
+    # SARSA-like critic that best_of_n's selection improves on once) | one_step (the policy network's
+    # one-step chunk, near the mean of its chunks: a chunk valued as if the averaged policy followed)
     backup: str = "max"
-    backup_samples: int = 0  # chunks drawn per TD target; 0: num_samples in best_of_n, else 1
+    # chunks drawn per TD target; 0: num_samples in best_of_n with the max or mean backup, else 1
+    backup_samples: int = 0
     # distill: weight of the distillation loss (FQL: 3-1000 by task family, QC-FQL 100);
     # direct: weight of the L1 Flow BC loss
     alpha: float = 100.0
@@ -125,7 +127,7 @@ def _register_choices() -> None:
 
     register_choices("finetune.mode", lambda: FINETUNE_MODES)
     register_choices("finetune.q_agg", lambda: ("mean", "min"))
-    register_choices("finetune.backup", lambda: ("max", "mean"))
+    register_choices("finetune.backup", lambda: ("max", "mean", "one_step"))
     register_choices("finetune.one_step_init", lambda: ("teacher", "scratch"))
     register_choices("online.mixing", lambda: ("seed", "balanced"))
     register_check(_check_online)

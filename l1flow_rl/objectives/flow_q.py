@@ -16,7 +16,8 @@ end (``chunk_valid`` False) drop out of the critic loss. The actor objective has
   (:class:`~l1flow_rl.networks.best_of_n.BestOfNActor`), and the TD target backs up that choice:
   the max over N drawn next chunks of the target critics' value (``backup="max"``), or the mean
   over the draws (``backup="mean"``: the value of the policy as it samples, a SARSA-like critic that
-  the selection then improves on once, as in one-step offline RL).
+  the selection then improves on once, as in one-step offline RL), or the policy network's one-step
+  chunk (``backup="one_step"``: a chunk valued as if the policy's averaged behaviour followed it).
 
 ``normalize_q_loss`` scales the Q term by ``lambda = 1 / mean|Q|`` (no gradient through lambda),
 as FQL does.
@@ -36,6 +37,7 @@ from torchrl.objectives import LossModule
 from torchrl.objectives.utils import ValueEstimators, _vmap_func, dispatch_value_estimator
 from torchrl.objectives.value import ValueEstimatorBase
 
+from l1flow_rl.flow.samplers import ChunkSampler, EulerSampler
 from l1flow_rl.objectives.chunk_loss import required_entry
 from l1flow_rl.objectives.l1flow import L1FlowLoss
 from l1flow_rl.policy import ChunkPolicy
@@ -43,7 +45,9 @@ from l1flow_rl.policy import ChunkPolicy
 __all__ = ["FlowQLoss"]
 
 _MODES = ("distill", "direct", "best_of_n")
-_BACKUPS = ("max", "mean")
+_BACKUPS = ("max", "mean", "one_step")
+#: the backup's one-step sampler: the sample-prediction network read once, at t = 0
+_ONE_STEP = EulerSampler(1)
 
 
 def _chunk_policy(module: TensorDictModule, what: str) -> ChunkPolicy:
@@ -88,10 +92,13 @@ class FlowQLoss(LossModule):
         num_samples: ``"best_of_n"``: N, chunks drawn per decision and by default per TD target
             (QC: 32).
         backup: how the TD target values the next state from its drawn chunks: ``"max"`` (QC's
-            expected-max backup; with one draw, the actor's own chunk) or ``"mean"`` (the expected
-            value of the actor's draws: Q of the policy as it samples, no maximisation bias).
+            expected-max backup; with one draw, the actor's own chunk), ``"mean"`` (the expected
+            value of the actor's draws: Q of the policy as it samples, no maximisation bias) or
+            ``"one_step"`` (the mean value of the actor network's one-step chunks f(z, 0 | s'), its
+            estimate of the chunk from pure noise, which lies near the mean of its chunks: on noisy
+            demonstrations, the value of a chunk followed by the policy with the noise averaged out).
         backup_samples: chunks drawn per TD target (default: ``num_samples`` in ``"best_of_n"``
-            mode, 1 otherwise).
+            mode with the ``"max"`` or ``"mean"`` backup, 1 otherwise).
         clip_actions: clip the actor's and the teacher's chunks to ``action_bounds``.
         action_bounds: (low, high) in environment units; None clips to the normalised [-1, 1], i.e.
             the demonstrated action range under the default ``"limits"`` normaliser.
@@ -264,7 +271,7 @@ class FlowQLoss(LossModule):
         if backup not in _BACKUPS:
             raise ValueError(f"backup must be one of {_BACKUPS}, got {backup!r}")
         if backup_samples is None:
-            backup_samples = num_samples if mode == "best_of_n" else 1
+            backup_samples = num_samples if mode == "best_of_n" and backup != "one_step" else 1
         if backup_samples < 1:
             raise ValueError(f"backup_samples must be >= 1, got {backup_samples}")
         if mode == "best_of_n":
@@ -419,10 +426,13 @@ class FlowQLoss(LossModule):
         start = self.policy.obs_horizon - 1
         return chunk[:, start : start + self.rl_horizon]
 
-    def _sample(self, policy: ChunkPolicy, obs: TensorDictBase, noise: Tensor) -> Tensor:
-        """The normalised chunk [N, H, A] from ``noise``; every network evaluation is in the graph."""
+    def _sample(
+        self, policy: ChunkPolicy, obs: TensorDictBase, noise: Tensor, sampler: ChunkSampler | None = None
+    ) -> Tensor:
+        """The normalised chunk [N, H, A] from ``noise`` under ``sampler`` (default: the policy's own);
+        every network evaluation is in the graph."""
         cond = policy.encode(obs)
-        return policy.sampler(lambda x, t: policy.denoise(x, t, cond), noise)
+        return (sampler or policy.sampler)(lambda x, t: policy.denoise(x, t, cond), noise)
 
     def _q(self, obs: TensorDictBase, chunk_env: Tensor, params: TensorDictBase) -> Tensor:
         """Ensemble values [Q, N, 1] of executed chunks in environment units."""
@@ -497,7 +507,8 @@ class FlowQLoss(LossModule):
                 noise = torch.randn(
                     draws * n, policy.pred_horizon, policy.action_dim, dtype=chunk.dtype, device=chunk.device
                 )
-                next_x = self._clip(self._sample(policy, drawn_obs, noise), policy)
+                sampler = _ONE_STEP if self.backup == "one_step" else None
+                next_x = self._clip(self._sample(policy, drawn_obs, noise, sampler), policy)
             next_chunk = policy.action_normalizer.unnormalize(self._executed(next_x))
             next_q = self._q(drawn_obs, next_chunk, self.target_qvalue_network_params)
             next_value = next_q.min(0).values if self.q_agg == "min" else next_q.mean(0)
