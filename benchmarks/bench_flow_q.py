@@ -141,7 +141,8 @@ def _plot(figures: dict[str, Any], path: Path) -> None:
     for a in arms:
         ci = figures["arms"][a].get("ci95")
         v = figures["arms"][a]["success_once"]
-        errs.append((v - ci[0], ci[1] - v) if ci else (0.0, 0.0))
+        # a Wilson bound can sit a rounding error past the value (0 successes: low ~ 1e-18)
+        errs.append((max(v - ci[0], 0.0), max(ci[1] - v, 0.0)) if ci else (0.0, 0.0))
     ax_bar.bar(
         arms, values, yerr=list(zip(*errs)), capsize=4, color=["grey", "tab:blue", "tab:green", "tab:orange"]
     )

@@ -375,6 +375,12 @@ def render_flow_q(d: dict) -> str:
     note = f"Setting: {d['setting']}. Gain of online FlowQ over continued BC: {_num(gain)}"
     best = d.get("gain_over_best_continued_bc")
     note += "." if best is None else f"; over the better of its two samplers: {_num(best)}."
+    data = d.get("data") or {}
+    if "noise" in data:  # which rollouts: files of the same name may come from other checkpoints
+        note += (
+            f" Data: {data['episodes']} episodes ({data['steps']} steps) of {data['checkpoint']} with "
+            f"action noise {data['noise']}, success rate {_num(data['success_rate'])}."
+        )
     offline = d.get("gain_offline_over_best_bc")
     if offline is not None:
         note += f" Offline FlowQ over the best BC arm (either sampler, the start included): {_num(offline)}."

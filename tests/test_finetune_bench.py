@@ -111,5 +111,9 @@ def test_noisy_rollouts_are_recorded_by_maniskill_and_train_every_arm(tmp_path):
     assert bench_flow_q.main([*common, "--data", str(out), "--out", str(figures_path)]) == 0
     figures = json.loads(figures_path.read_text())
     assert figures["data"]["path"] == str(out) and figures["data"]["noise"] == 0.3
+    from benchmarks import report
+
+    data_line = f"Data: 2 episodes ({summary['steps']} steps) of {checkpoint} with action noise 0.3"
+    assert data_line in report.render_flow_q(figures)
     assert figures["runs"]["bc"] != str(checkpoint.parents[1])  # its own BC, trained on the file
     assert f"path: {out}" in (tmp_path / figures["runs"]["bc"] / "config.yaml").read_text()
