@@ -65,7 +65,6 @@ def test_bad_settings_are_named():
 
 def test_trainer_best_of_n_selects_with_the_critics_it_trains(tmp_path):
     from l1flow_rl.workspace.build import build_actor
-    from l1flow_rl.workspace.checkpoint import load_actor, save_checkpoint
 
     cfg = OmegaConf.structured(AppConfig)
     cfg.policy.obs_horizon, cfg.policy.pred_horizon, cfg.policy.action_steps = TO, H, K
@@ -103,18 +102,7 @@ def test_trainer_best_of_n_selects_with_the_critics_it_trains(tmp_path):
     block = {"num_samples": 4, "rl_horizon": K, "num_qvalue_nets": 2, "critic_hidden_dims": [16]}
     policy_cfg = finetuned_policy_config(OmegaConf.to_container(cfg.policy), "best_of_n", block)
     assert policy_cfg["best_of_n"] == block and policy_cfg["name"].endswith("_qc")
-    path = tmp_path / "ft.pt"
-    save_checkpoint(
-        path,
-        {
-            "model": deployed.state_dict(),
-            "ema": None,
-            "config": {**OmegaConf.to_container(cfg), "policy": policy_cfg},
-            "obs_shapes": {"state": [D]},
-            "action_dim": A,
-        },
-    )
-    loaded, _ = load_actor(path)
+    loaded = _saved_and_reloaded(tmp_path / "ft.pt", deployed, cfg, policy_cfg)
     assert isinstance(loaded, BestOfNActor) and loaded.num_samples == 4
     torch.testing.assert_close(loaded.q_values(obs, chunks), deployed.q_values(obs, chunks))
     torch.manual_seed(3)
@@ -122,3 +110,82 @@ def test_trainer_best_of_n_selects_with_the_critics_it_trains(tmp_path):
     torch.manual_seed(3)
     torch.testing.assert_close(loaded(TensorDict({"observation": obs}, [3]))["action_chunk"], mine)
     assert loaded.with_sampler("euler", steps=1).sampler.nfe == 1
+
+
+def test_residual_critics_read_the_chunk_minus_the_policys_own_in_the_loss_and_the_actor(tmp_path):
+    """critic_input="residual": the critics read chunk - (the frozen policy's zero-noise chunk), the
+    same in the loss (data chunks and TD targets) and in the selecting actor, which reloads with it;
+    the residual of the policy's own zero-noise chunk is 0."""
+    from l1flow_rl.workspace.build import build_actor
+
+    torch.manual_seed(0)
+    cfg = OmegaConf.structured(AppConfig)
+    cfg.policy.obs_horizon, cfg.policy.pred_horizon, cfg.policy.action_steps = TO, H, K
+    cfg.policy.down_dims, cfg.policy.timestep_embed_dim = [8, 16], 8
+    cfg.finetune.mode, cfg.finetune.num_samples, cfg.finetune.critic_hidden_dims = "best_of_n", 4, [16]
+    cfg.finetune.critic_input = "residual"
+    trainer = FlowQTrainer(build_actor(cfg.policy, {"state": (D,)}, A), cfg.finetune)
+    loss, deployed = trainer.loss, trainer.policy_actor
+    assert loss.critic_input == deployed.critic_input == "residual"
+    obs = torch.randn(5, TO, D)
+    chunks = torch.rand(5, K, A) * 2 - 1
+    own = trainer.actor.policy(obs, deterministic=True)[:, :K]
+    od = loss.policy.as_obs_dict(obs)
+    torch.testing.assert_close(loss.reference_chunk(od), own)
+    torch.testing.assert_close(deployed.reference_chunk(obs), own)
+    with torch.no_grad():
+        hand = sum(c.module(obs, chunks - own) for c in _members(loss)).reshape(5) / 2
+        in_loss = loss._q(od, chunks, loss.qvalue_network_params).mean(0).reshape(5)
+    torch.testing.assert_close(in_loss, hand)
+    torch.testing.assert_close(deployed.q_values(obs, chunks), hand)
+    with torch.no_grad():  # the policy's own chunk is a zero residual
+        zero = sum(c.module(obs, torch.zeros_like(own)) for c in _members(loss)).reshape(5) / 2
+    torch.testing.assert_close(deployed.q_values(obs, own), zero)
+    # and it saves and reloads as a residual selector
+    block = {
+        "num_samples": 4,
+        "rl_horizon": K,
+        "num_qvalue_nets": 2,
+        "critic_hidden_dims": [16],
+        "critic_input": "residual",
+    }
+    policy_cfg = finetuned_policy_config(OmegaConf.to_container(cfg.policy), "best_of_n", block)
+    loaded = _saved_and_reloaded(tmp_path / "ft.pt", deployed, cfg, policy_cfg)
+    assert loaded.critic_input == "residual"
+    torch.testing.assert_close(loaded.q_values(obs, chunks), hand)
+    with pytest.raises(ValueError, match="critic_input must be 'action' or 'residual'"):
+        BestOfNActor(
+            trainer.actor,
+            _members(loss)[0],
+            loss.qvalue_network_params,
+            num_samples=2,
+            rl_horizon=K,
+            critic_input="delta",
+        )
+
+
+def _members(loss):
+    """The ensemble's critics as modules with their own parameters (for scores by hand)."""
+    import copy
+
+    out = []
+    for i in range(loss.num_qvalue_nets):
+        member = copy.deepcopy(loss.qvalue_network)
+        loss.qvalue_network_params[i].detach().to_module(member)
+        out.append(member)
+    return out
+
+
+def _saved_and_reloaded(path, deployed, cfg, policy_cfg):
+    """Save the selecting actor as a finetune run saves it, and load it back with ``load_actor``."""
+    from l1flow_rl.workspace.checkpoint import load_actor, save_checkpoint
+
+    state = {
+        "model": deployed.state_dict(),
+        "ema": None,
+        "config": {**OmegaConf.to_container(cfg), "policy": policy_cfg},
+        "obs_shapes": {"state": [D]},
+        "action_dim": A,
+    }
+    save_checkpoint(path, state)
+    return load_actor(path)[0]

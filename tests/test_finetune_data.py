@@ -262,6 +262,7 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
             "offline.critic_warmup=20",
             "finetune.backup=min",
             "finetune.backup_samples=-1",
+            "finetune.critic_input=residual",
         ]
     )
     err = capsys.readouterr().err
@@ -272,3 +273,4 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
     assert "summing to at most offline.steps=10" in err
     assert "finetune.backup='min': expected one of ['max', 'mean', 'one_step']" in err
     assert "finetune.backup_samples=-1: expected chunks drawn per TD target >= 1" in err
+    assert "finetune.critic_input=residual needs finetune.mode=best_of_n" in err

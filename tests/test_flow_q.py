@@ -441,11 +441,8 @@ def test_mean_backup_is_the_average_over_draws_of_the_policy():
     loss = FlowQLoss(actor, nets, mode="best_of_n", num_samples=n, backup="one_step", gamma=gamma)
     assert loss.backup_samples == 1
     torch.manual_seed(1)
+    next_obs, chunk = _one_step_next_chunk(loss, td)
     with torch.no_grad():
-        next_obs = policy.as_obs_dict(td["next", "observation"])
-        cond = policy.encode(next_obs)
-        x = policy.denoise(torch.randn(b, H, A), torch.zeros(b), cond).clamp(-1, 1)
-        chunk = policy.action_normalizer.unnormalize(loss._executed(x))
         q = loss._q(next_obs, chunk, loss.target_qvalue_network_params).mean(0).reshape(b)
     one_step_target = (td["next", "reward"].reshape(b) + gamma**K * q).mean()
     torch.testing.assert_close(target(mode="best_of_n", num_samples=n, backup="one_step"), one_step_target)
@@ -471,3 +468,44 @@ def test_docstring_examples_run(name):
 
     result = doctest.testmod(importlib.import_module(name), optionflags=doctest.ELLIPSIS)
     assert result.attempted > 0 and result.failed == 0
+
+
+@torch.no_grad()
+def _one_step_next_chunk(loss, td):
+    """(next observation dict, the one-step chunk f(z, 0 | s') in env units, executed steps), by hand."""
+    policy = loss.policy
+    next_obs = policy.as_obs_dict(td["next", "observation"])
+    b = next_obs.shape[0]
+    x = policy.denoise(torch.randn(b, H, A), torch.zeros(b), policy.encode(next_obs)).clamp(-1, 1)
+    return next_obs, policy.action_normalizer.unnormalize(loss._executed(x))
+
+
+def test_residual_critic_input_in_the_td_target_and_only_for_best_of_n():
+    """With critic_input="residual" the TD target values the next chunk minus the frozen policy's
+    zero-noise chunk at the next state (by hand), and the data chunk's Q reads its own residual."""
+    torch.manual_seed(0)
+    actor, nets, gamma, b = tiny_actor(), critics(tiny_actor(), 2), 0.9, 16
+    td = batch(b)
+    loss = FlowQLoss(
+        actor, nets, mode="best_of_n", num_samples=4, backup="one_step", gamma=gamma, critic_input="residual"
+    )
+    torch.manual_seed(1)
+    next_obs, chunk = _one_step_next_chunk(loss, td)
+    with torch.no_grad():
+        own = actor.policy(td["next", "observation"], deterministic=True)[:, :K]
+        loss.critic_input = "action"  # the critics on the residual, by hand
+        q = loss._q(next_obs, chunk - own, loss.target_qvalue_network_params).mean(0).reshape(b)
+        loss.critic_input = "residual"
+    expected = (td["next", "reward"].reshape(b) + gamma**K * q).mean()
+    torch.manual_seed(1)
+    torch.testing.assert_close(loss.qvalue_loss(td)[1]["target_mean"], expected)
+    for mode in ("direct", "distill"):
+        with pytest.raises(ValueError, match="critic_input='residual' needs mode='best_of_n'"):
+            kwargs = {"teacher_network": tiny_actor()} if mode == "distill" else {}
+            FlowQLoss(
+                actor if mode == "direct" else tiny_actor(),
+                nets,
+                mode=mode,
+                critic_input="residual",
+                **kwargs,
+            )

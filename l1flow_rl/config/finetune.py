@@ -28,6 +28,11 @@ class FinetuneConfig:
     backup: str = "max"
     # chunks drawn per TD target; 0: num_samples in best_of_n with the max or mean backup, else 1
     backup_samples: int = 0
+    # best_of_n: the critics read the executed chunk (action) or the chunk minus the BC policy's own
+    # chunk from zero noise at that state (residual): the part of the action the state does not
+    # predict, so that the ranking rests on demonstrated deviations, not on actions that co-occur
+    # with good states
+    critic_input: str = "action"
     # distill: weight of the distillation loss (FQL: 3-1000 by task family, QC-FQL 100);
     # direct: weight of the L1 Flow BC loss
     alpha: float = 100.0
@@ -98,14 +103,22 @@ def _check_online(cfg, command: str) -> list[str]:
     return problems
 
 
-def _check_backup(cfg, command: str) -> list[str]:
+def _check_critic(cfg, command: str) -> list[str]:
     ft = cfg.get("finetune")
-    if command != "finetune" or ft is None or ft.get("backup_samples", 0) >= 0:
+    if command != "finetune" or ft is None:
         return []
-    return [
-        f"finetune.backup_samples={ft.backup_samples}: expected chunks drawn per TD target >= 1, or 0 "
-        "for the mode's default (num_samples in best_of_n, else 1)"
-    ]
+    problems = []
+    if ft.get("backup_samples", 0) < 0:
+        problems.append(
+            f"finetune.backup_samples={ft.backup_samples}: expected chunks drawn per TD target >= 1, or 0 "
+            "for the mode's default (num_samples in best_of_n, else 1)"
+        )
+    if ft.get("critic_input", "action") == "residual" and ft.mode != "best_of_n":
+        problems.append(
+            f"finetune.critic_input=residual needs finetune.mode=best_of_n (a frozen policy to subtract), "
+            f"got finetune.mode={ft.mode}"
+        )
+    return problems
 
 
 def _check_offline(cfg, command: str) -> list[str]:
@@ -128,11 +141,12 @@ def _register_choices() -> None:
     register_choices("finetune.mode", lambda: FINETUNE_MODES)
     register_choices("finetune.q_agg", lambda: ("mean", "min"))
     register_choices("finetune.backup", lambda: ("max", "mean", "one_step"))
+    register_choices("finetune.critic_input", lambda: ("action", "residual"))
     register_choices("finetune.one_step_init", lambda: ("teacher", "scratch"))
     register_choices("online.mixing", lambda: ("seed", "balanced"))
     register_check(_check_online)
     register_check(_check_offline)
-    register_check(_check_backup)
+    register_check(_check_critic)
 
 
 _register_choices()  # a bad value fails at config time, naming the field (l1flow_rl.config.validate)

@@ -35,6 +35,9 @@ class BestOfNActor(TensorDictModuleBase):
             train). The score is the ensemble's mean.
         num_samples: N, chunks drawn per observation.
         rl_horizon: h, the executed steps the critic reads (the first h of the window).
+        critic_input: ``"action"`` (the critics read the chunk) or ``"residual"`` (the chunk minus the
+            policy's own chunk from zero noise at that state), as the critics were trained
+            (:class:`~l1flow_rl.FlowQLoss`'s ``critic_input``).
 
     Under ``ExplorationType.DETERMINISTIC`` every draw starts from zero noise, so the N draws coincide
     and the choice is the policy's own deterministic chunk.
@@ -60,6 +63,7 @@ class BestOfNActor(TensorDictModuleBase):
         *,
         num_samples: int,
         rl_horizon: int,
+        critic_input: str = "action",
     ) -> None:
         super().__init__()
         if num_samples < 1:
@@ -69,6 +73,8 @@ class BestOfNActor(TensorDictModuleBase):
                 f"rl_horizon={rl_horizon} must lie in [1, action_steps={actor.policy.action_steps}]: the "
                 "critic reads the first h steps of the executable window"
             )
+        if critic_input not in ("action", "residual"):
+            raise ValueError(f"critic_input must be 'action' or 'residual', got {critic_input!r}")
         if critic_params.batch_dims != 1:
             raise ValueError(
                 f"critic_params must be stacked along one leading ensemble dim, got batch size "
@@ -82,6 +88,7 @@ class BestOfNActor(TensorDictModuleBase):
         # in), and the state_dict holds the ensemble once, in critic_params
         object.__setattr__(self, "_critic", critic)
         self.num_samples, self.rl_horizon = int(num_samples), int(rl_horizon)
+        self.critic_input = critic_input
         self.in_keys: list[NestedKey] = list(actor.in_keys)
         self.out_keys: list[NestedKey] = list(actor.out_keys)
 
@@ -101,10 +108,21 @@ class BestOfNActor(TensorDictModuleBase):
             self.critic_params,
             num_samples=self.num_samples,
             rl_horizon=self.rl_horizon,
+            critic_input=self.critic_input,
         )
 
-    def q_values(self, observation: Tensor | TensorDictBase, chunk: Tensor) -> Tensor:
-        """The ensemble's mean Q [N] of executed chunks [N, h, A] (environment units)."""
+    @torch.no_grad()
+    def reference_chunk(self, observation: Tensor | TensorDictBase) -> Tensor:
+        """The policy's first h executed steps [N, h, A] from zero noise: what residual critics subtract."""
+        return self.policy(observation, deterministic=True)[:, : self.rl_horizon]
+
+    def q_values(
+        self, observation: Tensor | TensorDictBase, chunk: Tensor, reference: Tensor | None = None
+    ) -> Tensor:
+        """The ensemble's mean Q [N] of executed chunks [N, h, A] (environment units); ``reference``:
+        the residual critics' :meth:`reference_chunk` of ``observation``, when already computed."""
+        if self.critic_input == "residual":
+            chunk = chunk - (self.reference_chunk(observation) if reference is None else reference)
         obs = self.policy.as_obs_dict(observation)
         td = TensorDict({}, batch_size=[chunk.shape[0]])
         td.set(self._critic.in_keys[0], obs)
@@ -122,7 +140,10 @@ class BestOfNActor(TensorDictModuleBase):
         b, n = observation.shape[0], self.num_samples
         repeated = observation.repeat_interleave(n, 0)  # row i*n + j: observation i, draw j
         chunks = self.policy(repeated)  # [b*n, K, A]
-        scores = self.q_values(repeated, chunks[:, : self.rl_horizon]).reshape(b, n)
+        reference = None
+        if self.critic_input == "residual":  # once per observation, not once per draw
+            reference = self.reference_chunk(observation).repeat_interleave(n, 0)
+        scores = self.q_values(repeated, chunks[:, : self.rl_horizon], reference).reshape(b, n)
         draws = chunks.reshape(b, n, *chunks.shape[1:])
         return draws[torch.arange(b), scores.argmax(1)], draws, scores
 

@@ -99,6 +99,12 @@ class FlowQLoss(LossModule):
             demonstrations, the value of a chunk followed by the policy with the noise averaged out).
         backup_samples: chunks drawn per TD target (default: ``num_samples`` in ``"best_of_n"``
             mode with the ``"max"`` or ``"mean"`` backup, 1 otherwise).
+        critic_input: what the critics read besides the observation: ``"action"`` (the executed
+            chunk) or ``"residual"`` (``"best_of_n"`` only: the chunk minus the frozen policy's own
+            chunk from zero noise at that state). Both can represent any Q; the residual removes
+            the part of the action that the state predicts, so that on single-policy data the
+            critic's action ranking rests on the demonstrated deviations (e.g. injected noise)
+            instead of on actions that merely co-occur with good states.
         clip_actions: clip the actor's and the teacher's chunks to ``action_bounds``.
         action_bounds: (low, high) in environment units; None clips to the normalised [-1, 1], i.e.
             the demonstrated action range under the default ``"limits"`` normaliser.
@@ -222,6 +228,7 @@ class FlowQLoss(LossModule):
         num_samples: int = 32,
         backup: str = "max",
         backup_samples: int | None = None,
+        critic_input: str = "action",
         clip_actions: bool = True,
         action_bounds: tuple[Tensor, Tensor] | None = None,
         bc_loss_kwargs: dict | None = None,
@@ -274,6 +281,13 @@ class FlowQLoss(LossModule):
             backup_samples = num_samples if mode == "best_of_n" and backup != "one_step" else 1
         if backup_samples < 1:
             raise ValueError(f"backup_samples must be >= 1, got {backup_samples}")
+        if critic_input not in ("action", "residual"):
+            raise ValueError(f"critic_input must be 'action' or 'residual', got {critic_input!r}")
+        if critic_input == "residual" and mode != "best_of_n":
+            raise ValueError(
+                f"critic_input='residual' needs mode='best_of_n' (a frozen policy to subtract); "
+                f"mode={mode!r} trains the actor, which would move the critics' input under them"
+            )
         if mode == "best_of_n":
             actor_network.requires_grad_(False)  # selected from, never trained
         if train_teacher and mode != "distill":
@@ -291,6 +305,7 @@ class FlowQLoss(LossModule):
         self.num_qvalue_nets, self.clip_actions, self.reduction = num_qvalue_nets, clip_actions, reduction
         self.mask_padding, self.num_samples = mask_padding, int(num_samples)
         self.backup, self.backup_samples = backup, int(backup_samples)
+        self.critic_input = critic_input
 
         self.convert_to_functional(actor_network, "actor_network")
         self.convert_to_functional(
@@ -434,8 +449,27 @@ class FlowQLoss(LossModule):
         cond = policy.encode(obs)
         return (sampler or policy.sampler)(lambda x, t: policy.denoise(x, t, cond), noise)
 
-    def _q(self, obs: TensorDictBase, chunk_env: Tensor, params: TensorDictBase) -> Tensor:
-        """Ensemble values [Q, N, 1] of executed chunks in environment units."""
+    @torch.no_grad()
+    def reference_chunk(self, obs: TensorDictBase) -> Tensor:
+        """The frozen policy's executed chunk [N, h, A] from zero noise (environment units): what
+        ``critic_input="residual"`` subtracts."""
+        policy = self.policy
+        zeros = torch.zeros(obs.shape[0], policy.pred_horizon, policy.action_dim, dtype=policy.dtype)
+        with self.actor_network_params.to_module(self.actor_network):
+            x = self._sample(policy, obs, zeros.to(policy.action_normalizer.scale.device))
+        return policy.action_normalizer.unnormalize(self._executed(x))
+
+    def _q(
+        self,
+        obs: TensorDictBase,
+        chunk_env: Tensor,
+        params: TensorDictBase,
+        reference: Tensor | None = None,
+    ) -> Tensor:
+        """Ensemble values [Q, N, 1] of executed chunks in environment units (``reference``: the
+        residual critics' :meth:`reference_chunk` of ``obs``, when already computed)."""
+        if self.critic_input == "residual":
+            chunk_env = chunk_env - (self.reference_chunk(obs) if reference is None else reference)
         net = self.qvalue_network
         td = TensorDict({}, batch_size=[chunk_env.shape[0]])
         td.set(net.in_keys[0], obs)
@@ -510,7 +544,10 @@ class FlowQLoss(LossModule):
                 sampler = _ONE_STEP if self.backup == "one_step" else None
                 next_x = self._clip(self._sample(policy, drawn_obs, noise, sampler), policy)
             next_chunk = policy.action_normalizer.unnormalize(self._executed(next_x))
-            next_q = self._q(drawn_obs, next_chunk, self.target_qvalue_network_params)
+            reference = None
+            if self.critic_input == "residual":  # once per state, not once per draw
+                reference = torch.cat([self.reference_chunk(next_obs)] * draws)
+            next_q = self._q(drawn_obs, next_chunk, self.target_qvalue_network_params, reference)
             next_value = next_q.min(0).values if self.q_agg == "min" else next_q.mean(0)
             next_value = next_value.reshape(draws, n, 1)
             next_value = next_value.max(0).values if self.backup == "max" else next_value.mean(0)

@@ -219,7 +219,12 @@ def load_actor(
             hidden_dims=tuple(best_of_n.critic_hidden_dims),
         )
         actor = BestOfNActor(
-            actor, critics[0], stack_critics(critics), num_samples=int(best_of_n.num_samples), rl_horizon=h
+            actor,
+            critics[0],
+            stack_critics(critics),
+            num_samples=int(best_of_n.num_samples),
+            rl_horizon=h,
+            critic_input=str(best_of_n.get("critic_input", "action")),  # runs before it: the chunk
         )
     weights = state["ema"] if use_ema and state.get("ema") is not None else state["model"]
     load_state_into(actor, weights, str(path))

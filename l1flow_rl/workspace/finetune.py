@@ -157,6 +157,7 @@ def run_finetune(cfg: DictConfig) -> int:
         "rl_horizon": int(fcfg.rl_horizon) or int(cfg.policy.action_steps),
         "num_qvalue_nets": int(fcfg.num_qvalue_nets),
         "critic_hidden_dims": list(fcfg.critic_hidden_dims),
+        "critic_input": str(fcfg.critic_input),
     }
     saved_cfg = {**plain, "policy": finetuned_policy_config(plain["policy"], fcfg.mode, best_of_n)}
 

@@ -84,6 +84,7 @@ class FlowQTrainer:
             num_samples=cfg.num_samples,
             backup=cfg.backup,
             backup_samples=int(cfg.backup_samples) or None,
+            critic_input=cfg.critic_input,
         )
         self.rl_horizon = h
         # the actor that acts (evaluation, collection, checkpoints): best_of_n selects among the
@@ -96,6 +97,7 @@ class FlowQTrainer:
                 self.loss.qvalue_network_params,
                 num_samples=cfg.num_samples,
                 rl_horizon=h,
+                critic_input=cfg.critic_input,
             )
         # Valid chunks hold exactly h steps of their episode (chunk_valid), so the per-step affine map
         # r -> scale * r + offset turns a discounted chunk return R_h into scale * R_h + offset * sum_i g^i.
