@@ -211,9 +211,9 @@ def test_direct_mode_offline_only_keeps_the_two_step_actor(tmp_path, data_dir, b
 
 
 def test_best_of_n_offline_then_online_acts_with_its_critics_and_evaluates(tmp_path, data_dir, bc_checkpoint):
-    """QC's best-of-N: the critics train (Monte-Carlo, then TD with the mean backup over 2 draws),
-    the BC network does not, the collector and the evaluation act with the selecting actor, and
-    ``l1flow-rl eval`` reloads it as one."""
+    """QC's best-of-N: the critics (reading residual chunks) train by Monte-Carlo, then TD with the
+    mean backup over 2 draws; the BC network does not; the collector and the evaluation act with the
+    selecting actor, and ``l1flow-rl eval`` reloads it as one."""
     run_dir = tmp_path / "qc"
     args = [
         "finetune",
@@ -224,6 +224,7 @@ def test_best_of_n_offline_then_online_acts_with_its_critics_and_evaluates(tmp_p
         "finetune.num_samples=4",
         "finetune.backup=mean",
         "finetune.backup_samples=2",
+        "finetune.critic_input=residual",
         "offline.critic_pretrain=2",
         "online.steps=40",
         "online.frames_per_round=40",
@@ -235,12 +236,13 @@ def test_best_of_n_offline_then_online_acts_with_its_critics_and_evaluates(tmp_p
     metrics = json.loads((run_dir / "history.json").read_text())["history"]["metrics"]
     assert not any("loss_actor" in m for m in metrics)
     saved = yaml.safe_load((run_dir / "config.yaml").read_text())["finetune"]
-    assert (saved["backup"], saved["backup_samples"]) == ("mean", 2)
+    assert (saved["backup"], saved["backup_samples"], saved["critic_input"]) == ("mean", 2, "residual")
     bc_weights = load_checkpoint(bc_checkpoint)["ema"]
     inner = {k.removeprefix("actor."): v for k, v in state["model"].items() if k.startswith("actor.")}
     assert inner and all(torch.equal(v, bc_weights[k]) for k, v in inner.items())  # the BC network, untouched
     actor, cfg = load_actor(run_dir / "checkpoints" / "latest.pt")
     assert type(actor).__name__ == "BestOfNActor" and actor.num_samples == 4 and cfg.policy.best_of_n
+    assert actor.critic_input == "residual"
     record = json.loads((run_dir / "eval.json").read_text())
     assert record["episodes"] == 2 and 0.0 <= record["success_once"] <= 1.0
     assert (
