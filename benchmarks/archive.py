@@ -3,7 +3,7 @@
 A benchmark grid on 2 CPU cores outlasts one session, and a session's machine (with ``runs/``) is
 gone at its end. ``save`` copies, for every finished run and re-scoring under a sweep's root, the
 small files a sweep reads back (``eval.json``, ``config.yaml``, ``history.json``, ``summary.json``)
-into ``benchmarks/archive/<root>``; ``restore`` puts them back under the root, so that the next
+into ``benchmarks/run_records/<root>``; ``restore`` puts them back under the root, so that the next
 session's sweep reads those runs as done and trains only the rest. Checkpoints stay behind (70 MB
 each): a restored run can no longer be re-scored under new settings, only read.
 
@@ -22,11 +22,11 @@ __all__ = ["RECORD_FILES", "archive_dir", "restore", "save"]
 
 #: what a sweep reads back from a finished run or re-scoring
 RECORD_FILES = ("eval.json", "config.yaml", "history.json", "summary.json")
-ARCHIVE = Path("benchmarks/archive")
+ARCHIVE = Path("benchmarks/run_records")
 
 
 def archive_dir(root: Path, archive: Path = ARCHIVE) -> Path:
-    """Where ``root``'s records live: the archive mirrors its path (``runs/x`` -> ``archive/runs/x``)."""
+    """Where ``root``'s records live: the archive mirrors its path (``runs/x`` -> ``run_records/runs/x``)."""
     if root.is_absolute():
         raise ValueError(
             f"{root}: give the sweep's root relative to the repository (e.g. runs/bench_success)"
