@@ -203,9 +203,9 @@ def main(argv: list[str] | None = None) -> int:
         for policy, runs in by_policy.items():
             # each run's re-scorings follow its training: a sweep stopped midway leaves whole runs,
             # which benchmarks.archive can keep without their checkpoints
-            evaluations: dict[str, list[dict[str, Any]]] = {policy: []}
-            for label, _, _ in plans[task][policy]:
-                evaluations[label] = []
+            evaluations: dict[str, list[dict[str, Any]]] = {
+                label: [] for label in [policy, *(label for label, _, _ in plans[task][policy])]
+            }
             for r in runs:
                 evaluations[policy].append(train(r, root / "data"))
                 for label, name, overrides in plans[task][policy]:

@@ -37,7 +37,8 @@ from torchrl.objectives import LossModule
 from torchrl.objectives.utils import ValueEstimators, _vmap_func, dispatch_value_estimator
 from torchrl.objectives.value import ValueEstimatorBase
 
-from l1flow_rl.flow.samplers import ChunkSampler, EulerSampler
+from l1flow_rl.flow.samplers import ChunkSampler, make_sampler
+from l1flow_rl.networks.one_step import ONE_STEP_SAMPLER
 from l1flow_rl.objectives.chunk_loss import required_entry
 from l1flow_rl.objectives.l1flow import L1FlowLoss
 from l1flow_rl.policy import ChunkPolicy
@@ -46,8 +47,8 @@ __all__ = ["FlowQLoss"]
 
 _MODES = ("distill", "direct", "best_of_n")
 _BACKUPS = ("max", "mean", "one_step")
-#: the backup's one-step sampler: the sample-prediction network read once, at t = 0
-_ONE_STEP = EulerSampler(1)
+#: the backup's one-step sampler: the sample-prediction network read once, at t = 0 (FQL's mu)
+_ONE_STEP = make_sampler(ONE_STEP_SAMPLER[0], **ONE_STEP_SAMPLER[1])
 
 
 def _chunk_policy(module: TensorDictModule, what: str) -> ChunkPolicy:
@@ -453,11 +454,8 @@ class FlowQLoss(LossModule):
     def reference_chunk(self, obs: TensorDictBase) -> Tensor:
         """The frozen policy's executed chunk [N, h, A] from zero noise (environment units): what
         ``critic_input="residual"`` subtracts."""
-        policy = self.policy
-        zeros = torch.zeros(obs.shape[0], policy.pred_horizon, policy.action_dim, dtype=policy.dtype)
         with self.actor_network_params.to_module(self.actor_network):
-            x = self._sample(policy, obs, zeros.to(policy.action_normalizer.scale.device))
-        return policy.action_normalizer.unnormalize(self._executed(x))
+            return self.policy(obs, deterministic=True)[:, : self.rl_horizon]
 
     def _q(
         self,
