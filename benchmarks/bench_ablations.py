@@ -10,8 +10,10 @@ Every variant is a loss option (retrained) or a sampler swap (the same trained n
 Saved: ``benchmarks/results/ablations_<task>_<demos>demos_<steps>steps.json`` (per variant:
 success_once mean and spread over seeds, per-seed values with their 95 % intervals) and a PNG. Runs
 live under ``--root``/<the same setting name>/ and resume like ``bench_success``'s; ``--jobs N`` trains
-N loss variants, then re-scores N sampler swaps, side by side. Pick a setting below the ceiling, or
-every variant ties: PushCube with 100 demonstrations saturates near 0.9 in 2,500 steps.
+N loss variants, then re-scores N sampler swaps, side by side; one job re-scores each default run
+right after training it, so that a stopped sweep leaves whole runs for ``benchmarks.archive``.
+Pick a setting below the ceiling, or every variant ties: PushCube with 100 demonstrations saturates
+near 0.9 in 2,500 steps.
 
     .venv/bin/python -m benchmarks.bench_ablations --task maniskill_pushcube --demos 20 --seeds 0 1 2 --jobs 2
 """
@@ -113,17 +115,22 @@ def main(argv: list[str] | None = None) -> int:
         ]
         for name, options in LOSS_VARIANTS.items()
     }
-    if args.jobs > 1:
-        make_demos([o for o in common if o.startswith(("task", "demos."))], data_dir, root / "demos.log")
-        train_side_by_side([r for runs in grid.values() for r in runs], data_dir, args.jobs)
-    for name, runs in grid.items():
-        evals = [train(r, data_dir) for r in runs]
-        results[name] = {"kind": "loss", "options": LOSS_VARIANTS[name], "evals": evals}
     default_runs = grid["default"]
     task = [o for o in args.extra if o.startswith("task.")]  # re-scoring must see the same task
     swaps = {n: [*o, f"eval.episodes={args.eval_episodes}", *task] for n, o in SAMPLER_VARIANTS.items()}
-    if args.jobs > 1:  # side by side first; the loop below reads them back
+    if args.jobs > 1:
+        make_demos([o for o in common if o.startswith(("task", "demos."))], data_dir, root / "demos.log")
+        train_side_by_side([r for runs in grid.values() for r in runs], data_dir, args.jobs)
+        # side by side first; the loops below read them back
         rescore_side_by_side([(r, n, o) for n, o in swaps.items() for r in default_runs], args.jobs)
+    for name, runs in grid.items():
+        evals = []
+        for r in runs:
+            evals.append(train(r, data_dir))
+            if name == "default":  # its swaps right away: a stopped sweep leaves whole runs to archive
+                for swap, overrides in swaps.items():
+                    rescore(r, swap, overrides)
+        results[name] = {"kind": "loss", "options": LOSS_VARIANTS[name], "evals": evals}
     for name, overrides in swaps.items():
         evals = [rescore(r, name, overrides) for r in default_runs]
         results[name] = {"kind": "sampler", "options": SAMPLER_VARIANTS[name], "evals": evals}

@@ -289,8 +289,8 @@ def main(argv: list[str] | None = None) -> int:
         f"online.steps={args.online_steps}",
         f"online.updates_per_step={args.updates_per_step}",
         f"online.eval_every={args.online_eval_every}",
-        "online.num_envs=2",
-        f"online.frames_per_round={20 if args.quick else 200}",
+        # rounds of one full-length episode per env (online.frames_per_round=0); quick: 2 rounds of 20
+        f"online.num_envs={1 if args.quick else 2}",
     ]
 
     bc_run = Run("bc", [*bc_over, *shared, f"train.steps={args.bc_steps}"], root / f"bc_{args.bc_steps}")

@@ -119,6 +119,34 @@ def test_reward_shaping_maps_every_step_of_a_chunk():
     assert torch.equal(plain.shape_rewards(again)["next", "reward"], before)
 
 
+def test_sparse_reward_is_one_at_the_terminal_step_only():
+    """finetune.reward=sparse, h = 3, gamma 0.9: episode 0 (5 steps, terminated) pays 1 at its last
+    step only, so the window at t = 2 returns 0.81 and t = 0 returns 0; with the default offset -1
+    per step the t = 2 chunk is worth -1 - 0.9 + 0.81 * 0. The Monte-Carlo return of t = 0 is 0.9^4,
+    the truncated episode 1 earns nothing, and data where no episode terminates are refused."""
+    cfg = run_cfg(**{"finetune.rl_horizon": 3, "finetune.reward": "sparse"})
+    batch = RLBuffers(cfg, episodes(), rl_horizon=3, seed=0).sample_offline()
+
+    def at(e, t, key):
+        rows = ((batch["episode"] == e) & (batch["step"] == t)).nonzero().squeeze(1)
+        assert rows.numel(), f"window at episode {e}, t={t} not drawn"
+        return batch[key][rows]
+
+    for t, expected in ((0, 0.0), (1, 0.0), (2, 0.81)):
+        value = at(0, t, ("next", "reward"))
+        torch.testing.assert_close(value, torch.full_like(value, expected))
+    mc = at(0, 0, ("mc", "return"))
+    torch.testing.assert_close(mc, torch.full_like(mc, 0.9**4))
+    assert float(batch["next", "reward"][batch["episode"] == 1].abs().max()) == 0.0
+    shaped = FlowQTrainer(bc_actor(), cfg.finetune).shape_rewards(batch)
+    rows = ((shaped["episode"] == 0) & (shaped["step"] == 2)).nonzero().squeeze(1)
+    value = shaped["next", "reward"][rows]
+    torch.testing.assert_close(value, torch.full_like(value, -1 - 0.9 + 0.81 * 0.0))
+
+    with pytest.raises(ValueError, match=r"finetune.reward=sparse.*never true"):
+        RLBuffers(cfg, episodes(terminated=(False, False)), rl_horizon=3, seed=0)
+
+
 @pytest.mark.parametrize("mixing", ["seed", "balanced"])
 def test_online_episodes_join_the_demonstrations(mixing):
     cfg = run_cfg(
@@ -263,6 +291,7 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
             "finetune.backup=min",
             "finetune.backup_samples=-1",
             "finetune.critic_input=residual",
+            "finetune.reward=dense",
         ]
     )
     err = capsys.readouterr().err
@@ -274,3 +303,8 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
     assert "finetune.backup='min': expected one of ['max', 'mean', 'one_step']" in err
     assert "finetune.backup_samples=-1: expected chunks drawn per TD target >= 1" in err
     assert "finetune.critic_input=residual needs finetune.mode=best_of_n" in err
+    assert "finetune.reward='dense': expected one of ['recorded', 'sparse']" in err
+    code = main(["finetune", "checkpoint=missing.pt", "online.steps=100", "online.frames_per_round=200"])
+    err = capsys.readouterr().err
+    assert code == 2 and "online.frames_per_round=200 gives each of online.num_envs=2 envs 100 steps" in err
+    assert "fewer than task.max_episode_steps=150" in err and "use at least 300" in err

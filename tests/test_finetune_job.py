@@ -42,7 +42,7 @@ FT = [
     "finetune.checkpoint_every=3",
     "eval.episodes=2",
     "eval.num_envs=1",
-    "task.max_episode_steps=30",
+    "task.max_episode_steps=20",  # a round gives each env a whole episode: 2 envs x 20 steps
 ]
 
 
@@ -91,7 +91,7 @@ def test_finetune_offline_then_online_writes_eval_and_checkpoints(finetuned, bc_
             "lambda",
             "bc_distance",
         } <= set(m)
-    # two rounds of 2 envs x 20 steps: every step stored (episodes cut at the round end are truncated)
+    # two rounds of 2 envs x 20 steps: every step stored (episodes end at success or the time limit)
     assert [r["env_steps"] for r in history["rounds"]] == [40, 80]
     assert [r["steps_stored"] for r in history["rounds"]] == [40, 40]
     assert (finetuned / "finetune.png").stat().st_size > 1000

@@ -8,13 +8,25 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-__all__ = ["FINETUNE_MODES", "FinetuneConfig", "OfflineConfig", "OnlineConfig"]
+__all__ = [
+    "FINETUNE_MODES",
+    "REWARDS",
+    "REWARD_KEYS",
+    "FinetuneConfig",
+    "OfflineConfig",
+    "OnlineConfig",
+    "round_frames",
+]
 
 #: ``distill``: FQL's one-step policy mu(s, z) distilled from the L1 Flow 2-NFE chunk and pushed up Q;
 #: ``direct``: the L1 Flow policy itself, Q's gradient through its two network evaluations;
 #: ``best_of_n``: Q-chunking's QC, the L1 Flow policy as trained, executing the best of
 #: ``num_samples`` of its chunks under the critics (which back up that choice).
 FINETUNE_MODES = ("distill", "direct", "best_of_n")
+
+#: ``finetune.reward``: the per-step reward entry each choice reads from the stored steps.
+REWARD_KEYS = {"recorded": ("next", "reward"), "sparse": ("next", "terminated")}
+REWARDS = tuple(REWARD_KEYS)
 
 
 @dataclass
@@ -50,6 +62,14 @@ class FinetuneConfig:
     # to r - 1 <= 0 (FQL's OGBench convention: -1 per step until the goal, 0 at it).
     reward_scale: float = 1.0
     reward_offset: float = -1.0
+    # Which per-step reward the critic learns from: recorded (the data's and the env's ("next",
+    # "reward"): ManiSkill's normalized_dense, PushT's coverage, ...) | sparse (1 on the step that ends
+    # its episode in a terminal state, else 0: success, where terminations are on and a task's only
+    # terminal state is success, as in ManiSkill's PushCube/PickCube/StackCube and the collector's
+    # episodes). With the default offset: -1 per step until success, 0 at it (FQL's OGBench rewards).
+    # Why: a shaped reward's reaching terms can rank chunks that hang back near a good pose above
+    # chunks that finish the task.
+    reward: str = "recorded"
     rl_horizon: int = 0  # executed actions per critic chunk; 0: the policy's action_steps
     tau: float = 0.005  # Polyak rate of the target critics (TorchRL SoftUpdate)
     lr: float = 3.0e-4
@@ -75,7 +95,10 @@ class OfflineConfig:
 class OnlineConfig:
     steps: int = 0  # environment steps collected by the fine-tuned policy (0: offline only)
     num_envs: int = 2  # collector envs (worker processes on the CPU)
-    frames_per_round: int = 300  # env steps per collection round; updates and checkpoints fall between
+    # env steps per collection round (all envs together); updates and checkpoints fall between. Every
+    # round resets its envs, so an env must be able to play a whole episode in its share: at least
+    # num_envs * task.max_episode_steps. 0: exactly that (one full-length episode per env)
+    frames_per_round: int = 0
     updates_per_step: float = 1.0  # gradient updates per environment step (FQL: 1)
     # seed: one buffer that the demonstrations seed and online episodes extend (FQL's default);
     # balanced: a fixed offline_fraction of every batch from the demonstrations
@@ -87,16 +110,33 @@ class OnlineConfig:
     env_seed: int = 100_000  # the first collection episode's seed (evaluation uses eval.seed onward)
 
 
+def round_frames(cfg) -> int:
+    """The env steps of one collection round: ``online.frames_per_round``, or with 0, one
+    full-length episode per env (``online.num_envs * task.max_episode_steps``)."""
+    on = cfg.online
+    return int(on.frames_per_round) or int(on.num_envs) * int(cfg.task.max_episode_steps)
+
+
 def _check_online(cfg, command: str) -> list[str]:
     """Online settings that would otherwise fail only after the offline phase."""
     on = cfg.get("online")
     if command != "finetune" or on is None or on.steps <= 0:
         return []
     problems = []
-    if on.num_envs < 1 or on.frames_per_round < 1 or on.frames_per_round % on.num_envs:
+    frames = round_frames(cfg) if on.num_envs >= 1 else 0
+    if on.num_envs < 1 or frames < 1 or frames % on.num_envs:
         problems.append(
             f"online.frames_per_round={on.frames_per_round} must be a positive multiple of "
             f"online.num_envs={on.num_envs} (every env steps as often per round)"
+        )
+    elif frames // on.num_envs < cfg.task.max_episode_steps:
+        # each round resets its envs: a shorter share cuts every episode before its time limit
+        problems.append(
+            f"online.frames_per_round={on.frames_per_round} gives each of online.num_envs="
+            f"{on.num_envs} envs {frames // on.num_envs} steps per round, fewer than "
+            f"task.max_episode_steps={cfg.task.max_episode_steps}: every round resets the envs, so "
+            f"episodes would be cut short; use at least {on.num_envs * cfg.task.max_episode_steps} "
+            "(or 0 for exactly that)"
         )
     if not 0.0 < on.offline_fraction < 1.0:
         problems.append(f"online.offline_fraction={on.offline_fraction}: expected a value in (0, 1)")
@@ -142,6 +182,7 @@ def _register_choices() -> None:
     register_choices("finetune.q_agg", lambda: ("mean", "min"))
     register_choices("finetune.backup", lambda: ("max", "mean", "one_step"))
     register_choices("finetune.critic_input", lambda: ("action", "residual"))
+    register_choices("finetune.reward", lambda: REWARDS)
     register_choices("finetune.one_step_init", lambda: ("teacher", "scratch"))
     register_choices("online.mixing", lambda: ("seed", "balanced"))
     register_check(_check_online)

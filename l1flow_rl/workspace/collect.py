@@ -19,6 +19,8 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import MultiStepActorWrapper
 
+from l1flow_rl.config.finetune import round_frames
+
 __all__ = ["OnlineCollector", "round_stats", "single_frames"]
 
 #: seeds reserved per round: every env reset of a round draws consecutive seeds from the round's base
@@ -59,7 +61,8 @@ def round_stats(batch: TensorDictBase) -> dict[str, float | None]:
 
 
 class OnlineCollector:
-    """Collects ``frames_per_round`` environment steps per :meth:`collect` with the given actor.
+    """Collects one round of environment steps (``online.frames_per_round``; see
+    :func:`~l1flow_rl.config.finetune.round_frames`) per :meth:`collect` with the given actor.
 
     Args:
         cfg: the composed run config (``task``, ``policy``, ``online``).
@@ -75,7 +78,8 @@ class OnlineCollector:
         from l1flow_rl.envs.registry import get_simulator
 
         ocfg = cfg.online
-        if ocfg.frames_per_round % ocfg.num_envs:
+        frames = round_frames(cfg)
+        if frames % ocfg.num_envs:
             raise ValueError(
                 f"online.frames_per_round={ocfg.frames_per_round} must be a multiple of online.num_envs="
                 f"{ocfg.num_envs} (every env steps the same number of times per round)"
@@ -98,7 +102,7 @@ class OnlineCollector:
             self.collector = Collector(
                 self.env,
                 policy,
-                frames_per_batch=int(ocfg.frames_per_round),
+                frames_per_batch=frames,
                 total_frames=-1,
                 reset_at_each_iter=True,
                 exploration_type=ExplorationType.RANDOM,

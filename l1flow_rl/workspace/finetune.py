@@ -415,7 +415,8 @@ def _plot(history: dict, evals: list, rounds: list, run_dir: Path) -> None:
     ax_s.set_ylabel("success rate")
     ax_s.set_ylim(-0.05, 1.05)
     ax_s.grid(alpha=0.3)
-    ax_s.legend()
+    if evals or rounds:
+        ax_s.legend()
     fig.tight_layout()
     fig.savefig(run_dir / "finetune.png", dpi=110)
     plt.close(fig)

@@ -19,6 +19,7 @@ from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from torchrl.data import OfflineToOnlineReplayBuffer, TensorDictReplayBuffer
 
+from l1flow_rl.config.finetune import REWARD_KEYS, round_frames
 from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
 
 __all__ = ["ChunkOfflineToOnlineBuffer", "RLBuffers"]
@@ -46,6 +47,19 @@ class ChunkOfflineToOnlineBuffer(OfflineToOnlineReplayBuffer):
         self._online_buffer = online
 
 
+def _check_sparse_source(episodes: TensorDictBase, cfg: DictConfig) -> None:
+    """``finetune.reward=sparse`` reads success from the terminal steps: demonstrations recorded
+    with terminations off (no episode terminates) would give the critic no reward at all."""
+    terminated = episodes.get(("next", "terminated"), None)
+    if terminated is None or not bool(terminated.any()):
+        raise ValueError(
+            f"finetune.reward=sparse: no demonstration episode of task {cfg.task.name!r} ends in a "
+            "terminal state (('next', 'terminated') is never true), so the sparse reward (1 at the "
+            "terminal step) would be 0 everywhere; record demonstrations that end at success, or use "
+            "finetune.reward=recorded"
+        )
+
+
 class RLBuffers:
     """Demonstration and online chunk buffers of one run, with RL targets for the critic.
 
@@ -67,9 +81,14 @@ class RLBuffers:
         if not 0.0 < ocfg.offline_fraction < 1.0:
             raise ValueError(f"online.offline_fraction must lie in (0, 1), got {ocfg.offline_fraction}")
         self.mixing = ocfg.mixing
+        reward = str(cfg.finetune.get("reward", "recorded"))
+        if reward not in REWARD_KEYS:
+            raise ValueError(f"finetune.reward={reward!r}; expected one of {tuple(REWARD_KEYS)}")
+        if reward == "sparse":
+            _check_sparse_source(episodes, cfg)
         n_demo = int(episodes.shape[0])
         # room for every online step plus the unfinished episodes a round end flushes
-        online_capacity = int(ocfg.capacity) or int(ocfg.steps) + int(ocfg.frames_per_round)
+        online_capacity = int(ocfg.capacity) or int(ocfg.steps) + round_frames(cfg)
         common = dict(
             obs_horizon=cfg.policy.obs_horizon,
             pred_horizon=cfg.policy.pred_horizon,
@@ -77,6 +96,7 @@ class RLBuffers:
             **chunk_padding(cfg, episodes),  # the BC run's rule: recorded control, data.padding
             rl_horizon=rl_horizon,
             gamma=cfg.finetune.gamma,
+            reward_key=REWARD_KEYS[reward],
             keys=CORE_KEYS,  # demonstrations and online episodes share one set of entries
         )
         if self.mixing == "seed":
