@@ -201,6 +201,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--backup-samples", type=int, default=0, help="chunks drawn per TD target (0: the mode's default)"
     )
+    parser.add_argument(
+        "--reward",
+        default="recorded",
+        choices=("recorded", "sparse"),
+        help="the critic's per-step reward: the data's recorded one, or 1 at terminal (success) steps",
+    )
+    parser.add_argument(
+        "--critic-input",
+        default="action",
+        choices=("action", "residual"),
+        help="best_of_n: the critics read the chunk, or the chunk minus the BC policy's zero-noise chunk",
+    )
     parser.add_argument("--alpha", type=float, default=100.0)
     parser.add_argument("--gamma", type=float, default=0.99, help="the critic's per-step discount")
     parser.add_argument(
@@ -229,6 +241,8 @@ def main(argv: list[str] | None = None) -> int:
         "extra", nargs="*", help="hydra overrides for every run, e.g. task.max_episode_steps=80"
     )
     args = parser.parse_args(argv)
+    if args.critic_input == "residual" and args.mode != "best_of_n":
+        parser.error(f"--critic-input residual needs --mode best_of_n (got --mode {args.mode})")
 
     shared = [f"task={args.task}", f"seed={args.seed}", f"eval.episodes={args.episodes}", *args.extra]
     ft_over = [
@@ -266,6 +280,7 @@ def main(argv: list[str] | None = None) -> int:
             "offline.critic_warmup=2",
         ]
         args.critic_warmup, args.critic_pretrain = 2, 1
+    ft_over += [f"finetune.reward={args.reward}", f"finetune.critic_input={args.critic_input}"]
     bc_over = [f"data.path={args.data}"] if args.data else [f"demos.num={args.demos}"]
     source = args.data.stem.replace(".", "_") if args.data else f"{args.demos}demos"
     gamma = "" if args.gamma == 0.99 else f"_gamma{args.gamma:g}".replace(".", "p")
@@ -273,6 +288,9 @@ def main(argv: list[str] | None = None) -> int:
     knob = f"n{args.num_samples}" if args.mode == "best_of_n" else f"alpha{args.alpha:g}"
     if args.backup != "max" or args.backup_samples:  # the default (QC's max backup) keeps its old names
         knob += f"_{args.backup}" + (f"{args.backup_samples}" if args.backup_samples else "")
+    knob += ("_sparse" if args.reward == "sparse" else "") + (
+        "_residual" if args.critic_input == "residual" else ""
+    )
     warm = (f"_mc{args.critic_pretrain}" if args.critic_pretrain else "") + (
         f"_warm{args.critic_warmup}" if args.critic_warmup else ""
     )
@@ -333,6 +351,8 @@ def main(argv: list[str] | None = None) -> int:
         + (f"N {args.num_samples}" if args.mode == "best_of_n" else f"alpha {args.alpha}")
         + (f", {args.backup} backup" if args.backup != "max" else "")
         + (f" over {args.backup_samples} draws" if args.backup_samples else "")
+        + (", sparse reward" if args.reward == "sparse" else "")
+        + (", residual critic input" if args.critic_input == "residual" else "")
         + f", gamma {args.gamma}) "
         + (f"{args.critic_pretrain} Monte-Carlo critic updates + " if args.critic_pretrain else "")
         + (f"{args.critic_warmup} critic-only updates + " if args.critic_warmup else "")

@@ -117,3 +117,11 @@ def test_noisy_rollouts_are_recorded_by_maniskill_and_train_every_arm(tmp_path):
     assert data_line in report.render_flow_q(figures)
     assert figures["runs"]["bc"] != str(checkpoint.parents[1])  # its own BC, trained on the file
     assert f"path: {out}" in (tmp_path / figures["runs"]["bc"] / "config.yaml").read_text()
+
+
+def test_residual_critic_input_needs_best_of_n_before_anything_runs(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        bench_flow_q.main(["--critic-input", "residual", "--mode", "distill", "--root", str(tmp_path)])
+    assert exit_info.value.code == 2
+    assert "--critic-input residual needs --mode best_of_n (got --mode distill)" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())  # refused before any run started

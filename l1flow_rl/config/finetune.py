@@ -63,10 +63,11 @@ class FinetuneConfig:
     reward_scale: float = 1.0
     reward_offset: float = -1.0
     # Which per-step reward the critic learns from: recorded (the data's and the env's ("next",
-    # "reward"): ManiSkill's normalized_dense, PushT's coverage, ...) | sparse (1 on the step that ends
-    # its episode in a terminal state, else 0: success, where terminations are on and a task's only
+    # "reward"): ManiSkill's normalized_dense, PushT's coverage, ...) | sparse (1 on a step whose
+    # ("next", "terminated") is set, else 0: success, where terminations are on and a task's only
     # terminal state is success, as in ManiSkill's PushCube/PickCube/StackCube and the collector's
-    # episodes). With the default offset: -1 per step until success, 0 at it (FQL's OGBench rewards).
+    # episodes; a replayed demonstration that holds success for its last few steps pays each of them).
+    # With the default offset: -1 per step until success, 0 at it (FQL's OGBench rewards).
     # Why: a shaped reward's reaching terms can rank chunks that hang back near a good pose above
     # chunks that finish the task.
     reward: str = "recorded"
