@@ -359,9 +359,12 @@ def main(argv: list[str] | None = None) -> int:
         + f"{args.offline_steps} offline updates + {args.online_steps} env steps x {args.updates_per_step} "
         f"updates/step; continued BC {args.bc_steps + online_updates} steps; {args.episodes} test episodes"
     )
+    if args.extra:  # hydra overrides are not in the run names: the setting line says which ones ran
+        setting += f"; overrides: {' '.join(args.extra)}"
     figures = {
         "quick": args.quick,
         "setting": setting,
+        "overrides": list(args.extra),
         "budget": {
             "bc_steps": args.bc_steps,
             "offline_updates": args.offline_steps,
