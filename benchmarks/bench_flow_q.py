@@ -208,6 +208,18 @@ def main(argv: list[str] | None = None) -> int:
         help="the critic's per-step reward: the data's recorded one, or 1 at terminal (success) steps",
     )
     parser.add_argument(
+        "--reward-scale",
+        type=float,
+        default=None,
+        help="finetune.reward_scale for the flow-Q arms (the config's default when not given)",
+    )
+    parser.add_argument(
+        "--reward-offset",
+        type=float,
+        default=None,
+        help="finetune.reward_offset for the flow-Q arms (the config's default when not given)",
+    )
+    parser.add_argument(
         "--critic-input",
         default="action",
         choices=("action", "residual"),
@@ -281,6 +293,8 @@ def main(argv: list[str] | None = None) -> int:
         ]
         args.critic_warmup, args.critic_pretrain = 2, 1
     ft_over += [f"finetune.reward={args.reward}", f"finetune.critic_input={args.critic_input}"]
+    ft_over += [f"finetune.reward_scale={args.reward_scale}"] if args.reward_scale is not None else []
+    ft_over += [f"finetune.reward_offset={args.reward_offset}"] if args.reward_offset is not None else []
     bc_over = [f"data.path={args.data}"] if args.data else [f"demos.num={args.demos}"]
     source = args.data.stem.replace(".", "_") if args.data else f"{args.demos}demos"
     gamma = "" if args.gamma == 0.99 else f"_gamma{args.gamma:g}".replace(".", "p")
@@ -291,6 +305,8 @@ def main(argv: list[str] | None = None) -> int:
     knob += ("_sparse" if args.reward == "sparse" else "") + (
         "_residual" if args.critic_input == "residual" else ""
     )
+    knob += f"_rs{args.reward_scale:g}".replace(".", "p") if args.reward_scale is not None else ""
+    knob += f"_ro{args.reward_offset:g}".replace(".", "p") if args.reward_offset is not None else ""
     warm = (f"_mc{args.critic_pretrain}" if args.critic_pretrain else "") + (
         f"_warm{args.critic_warmup}" if args.critic_warmup else ""
     )
@@ -353,6 +369,8 @@ def main(argv: list[str] | None = None) -> int:
         + (f" over {args.backup_samples} draws" if args.backup_samples else "")
         + (", sparse reward" if args.reward == "sparse" else "")
         + (", residual critic input" if args.critic_input == "residual" else "")
+        + (f", reward x {args.reward_scale:g}" if args.reward_scale is not None else "")
+        + (f" {args.reward_offset:+g} per step" if args.reward_offset is not None else "")
         + f", gamma {args.gamma}) "
         + (f"{args.critic_pretrain} Monte-Carlo critic updates + " if args.critic_pretrain else "")
         + (f"{args.critic_warmup} critic-only updates + " if args.critic_warmup else "")
