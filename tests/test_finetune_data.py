@@ -102,7 +102,7 @@ def test_chunk_td_target_from_the_real_buffer_by_hand():
 
 def test_reward_shaping_maps_every_step_of_a_chunk():
     """reward_scale 0.5, reward_offset -1 per step on h = 3: the chunk return 1 + 0.9*2 + 0.81*3 of the
-    window at t = 0 becomes sum_i 0.9^i (0.5 r_i - 1); the defaults (offset -1) shift, 0/1 do not."""
+    window at t = 0 becomes sum_i 0.9^i (0.5 r_i - 1); the defaults ((r - 1) / 100) map, 0/1 do not."""
     cfg = run_cfg(**{"finetune.rl_horizon": 3, "finetune.reward_scale": 0.5, "finetune.reward_offset": -1.0})
     trainer = FlowQTrainer(bc_actor(), cfg.finetune)
     batch = RLBuffers(cfg, episodes(), rl_horizon=3, seed=0).sample_offline()
@@ -112,8 +112,11 @@ def test_reward_shaping_maps_every_step_of_a_chunk():
     shaped = trainer.shape_rewards(batch)["next", "reward"][rows]
     expected = (0.5 * 1 - 1) + 0.9 * (0.5 * 2 - 1) + 0.81 * (0.5 * 3 - 1)
     torch.testing.assert_close(shaped, torch.full_like(shaped, expected))
-    assert OmegaConf.structured(AppConfig).finetune.reward_offset == -1.0
-    plain = FlowQTrainer(bc_actor(), run_cfg(**{"finetune.reward_offset": 0.0}).finetune)
+    defaults = OmegaConf.structured(AppConfig).finetune
+    assert (defaults.reward_scale, defaults.reward_offset) == (0.01, -0.01)
+    plain = FlowQTrainer(
+        bc_actor(), run_cfg(**{"finetune.reward_scale": 1.0, "finetune.reward_offset": 0.0}).finetune
+    )
     again = RLBuffers(cfg, episodes(), rl_horizon=3, seed=0).sample_offline()
     before = again["next", "reward"].clone()
     assert torch.equal(plain.shape_rewards(again)["next", "reward"], before)
@@ -121,9 +124,10 @@ def test_reward_shaping_maps_every_step_of_a_chunk():
 
 def test_sparse_reward_is_one_at_the_terminal_step_only():
     """finetune.reward=sparse, h = 3, gamma 0.9: episode 0 (5 steps, terminated) pays 1 at its last
-    step only, so the window at t = 2 returns 0.81 and t = 0 returns 0; with the default offset -1
-    per step the t = 2 chunk is worth -1 - 0.9 + 0.81 * 0. The Monte-Carlo return of t = 0 is 0.9^4,
-    the truncated episode 1 earns nothing, and data where no episode terminates are refused."""
+    step only, so the window at t = 2 returns 0.81 and t = 0 returns 0; under the default map
+    (r - 1) / 100 per step the t = 2 chunk is worth -0.01 - 0.009 + 0. The Monte-Carlo return of
+    t = 0 is 0.9^4, the truncated episode 1 earns nothing, and data where no episode terminates are
+    refused."""
     cfg = run_cfg(**{"finetune.rl_horizon": 3, "finetune.reward": "sparse"})
     batch = RLBuffers(cfg, episodes(), rl_horizon=3, seed=0).sample_offline()
 
@@ -141,7 +145,7 @@ def test_sparse_reward_is_one_at_the_terminal_step_only():
     shaped = FlowQTrainer(bc_actor(), cfg.finetune).shape_rewards(batch)
     rows = ((shaped["episode"] == 0) & (shaped["step"] == 2)).nonzero().squeeze(1)
     value = shaped["next", "reward"][rows]
-    torch.testing.assert_close(value, torch.full_like(value, -1 - 0.9 + 0.81 * 0.0))
+    torch.testing.assert_close(value, torch.full_like(value, -0.01 - 0.9 * 0.01 + 0.81 * 0.0))
 
     with pytest.raises(ValueError, match=r"finetune.reward=sparse.*never true"):
         RLBuffers(cfg, episodes(terminated=(False, False)), rl_horizon=3, seed=0)
@@ -222,9 +226,9 @@ def test_critic_warmup_updates_move_the_critics_only(mode):
 
 
 def test_monte_carlo_targets_by_hand():
-    """Shaped rewards r - 1 (the default offset), gamma 0.9: a terminated episode's value is its
+    """Shaped rewards r - 1 (scale 1, offset -1), gamma 0.9: a terminated episode's value is its
     return to the end; a truncated one's adds its last shaped reward repeated forever."""
-    cfg = run_cfg()
+    cfg = run_cfg(**{"finetune.reward_scale": 1.0, "finetune.reward_offset": -1.0})
     trainer = FlowQTrainer(bc_actor(), cfg.finetune)
     batch = RLBuffers(cfg, episodes(), rl_horizon=K, seed=0).sample_offline()
     mc = trainer.mc_targets(batch).reshape(-1)
