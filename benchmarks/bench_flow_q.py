@@ -398,6 +398,9 @@ def main(argv: list[str] | None = None) -> int:
         - results["bc_continued"]["success_once"],
         "gain_over_best_continued_bc": results["flowq_online"]["success_once"]
         - max(results["bc_continued"]["success_once"], results["bc_continued_one_step"]["success_once"]),
+        # offline FlowQ (no more updates than continued BC) against continued BC under either sampler
+        "gain_offline_over_best_continued_bc": results["flowq_offline"]["success_once"]
+        - max(results["bc_continued"]["success_once"], results["bc_continued_one_step"]["success_once"]),
         # offline FlowQ against the best any BC arm scored, under either sampler (the start included)
         "gain_offline_over_best_bc": results["flowq_offline"]["success_once"]
         - max(results[a]["success_once"] for a in BC_ARMS),

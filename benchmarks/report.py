@@ -381,6 +381,9 @@ def render_flow_q(d: dict) -> str:
             f" Data: {data['episodes']} episodes ({data['steps']} steps) of {data['checkpoint']} with "
             f"action noise {data['noise']}, success rate {_num(data['success_rate'])}."
         )
+    offline_cont = d.get("gain_offline_over_best_continued_bc")
+    if offline_cont is not None:
+        note += f" Offline FlowQ over continued BC (the better of its two samplers): {_num(offline_cont)}."
     offline = d.get("gain_offline_over_best_bc")
     if offline is not None:
         note += f" Offline FlowQ over the best BC arm (either sampler, the start included): {_num(offline)}."

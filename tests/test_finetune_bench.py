@@ -65,6 +65,11 @@ def test_quick_mode_runs_every_arm_and_saves_json_and_plot(tmp_path):
     assert figures["gain_over_best_continued_bc"] == pytest.approx(
         figures["arms"]["flowq_online"]["success_once"] - best
     )
+    assert figures["gain_offline_over_best_continued_bc"] == pytest.approx(
+        figures["arms"]["flowq_offline"]["success_once"] - best
+    )
+    offline_cont = report._num(figures["gain_offline_over_best_continued_bc"])
+    assert f"Offline FlowQ over continued BC (the better of its two samplers): {offline_cont}" in text
     best_bc = max(figures["arms"][a]["success_once"] for a in bench_flow_q.BC_ARMS)
     assert figures["gain_offline_over_best_bc"] == pytest.approx(
         figures["arms"]["flowq_offline"]["success_once"] - best_bc
