@@ -271,6 +271,26 @@ def test_monte_carlo_pretraining_fits_the_returns_and_moves_the_critics_only(mod
     assert (trainer.loss.target_qvalue_network_params == trainer.loss.qvalue_network_params.detach()).all()
 
 
+def test_best_of_n_critics_can_keep_regressing_onto_returns():
+    """finetune.critic_target=mc: in best_of_n there is no actor to train, so the online loop's
+    ordinary update (actor=True) takes critic='mc': the critics fit the returns, the policy network
+    and the target critics (no bootstrap) stay as they were."""
+    torch.manual_seed(0)
+    small = {"finetune.reward_scale": 0.05, "finetune.reward_offset": 0.0}
+    cfg = run_cfg(
+        **{"finetune.mode": "best_of_n", "finetune.num_samples": 2, "finetune.critic_target": "mc"},
+        **{"finetune.batch_size": 64, "finetune.lr": 3e-3, **small},
+    )
+    trainer = FlowQTrainer(bc_actor(), cfg.finetune)
+    buffers = RLBuffers(cfg, episodes(), rl_horizon=K, seed=0)
+    actor0 = {k: v.clone() for k, v in trainer.actor.state_dict().items()}
+    target0 = trainer.loss.target_qvalue_network_params.clone()
+    losses = [trainer.update(buffers.sample_offline(), critic="mc")["loss_qvalue"] for _ in range(150)]
+    assert sum(losses[-10:]) < 0.1 * sum(losses[:10])
+    assert all(torch.equal(v, actor0[k]) for k, v in trainer.actor.state_dict().items())
+    assert (trainer.loss.target_qvalue_network_params == target0).all()
+
+
 def test_bad_mixing_and_mode_are_named():
     with pytest.raises(ValueError, match=r"online\.mixing='half'"):
         RLBuffers(run_cfg(**{"online.mixing": "half"}), episodes(), rl_horizon=K, seed=0)
@@ -296,6 +316,7 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
             "finetune.backup_samples=-1",
             "finetune.critic_input=residual",
             "finetune.reward=dense",
+            "finetune.critic_target=mc",
         ]
     )
     err = capsys.readouterr().err
@@ -308,6 +329,7 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
     assert "finetune.backup_samples=-1: expected chunks drawn per TD target >= 1" in err
     assert "finetune.critic_input=residual needs finetune.mode=best_of_n" in err
     assert "finetune.reward='dense': expected one of ['recorded', 'sparse']" in err
+    assert "finetune.critic_target=mc needs finetune.mode=best_of_n" in err
     code = main(["finetune", "checkpoint=missing.pt", "online.steps=100", "online.frames_per_round=200"])
     err = capsys.readouterr().err
     assert code == 2 and "online.frames_per_round=200 gives each of online.num_envs=2 envs 100 steps" in err

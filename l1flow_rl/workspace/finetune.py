@@ -286,7 +286,7 @@ def run_finetune(cfg: DictConfig) -> int:
             if done_before + 1 == ocfg.critic_pretrain:
                 trainer.sync_target_critics()
         else:
-            metrics = trainer.update(batch, actor=done_before >= critic_only)
+            metrics = trainer.update(batch, actor=done_before >= critic_only, critic=fcfg.critic_target)
         progress["offline_updates"] += 1
         bar.update(1)
         done = progress["offline_updates"] == ocfg.steps
@@ -328,7 +328,7 @@ def run_finetune(cfg: DictConfig) -> int:
                 updates = round(on.updates_per_step * frames)
                 for i in range(updates):
                     batch = buffers.sample_online().to(device)
-                    metrics = trainer.update(batch)
+                    metrics = trainer.update(batch, critic=fcfg.critic_target)
                     if trainer.updates % fcfg.log_every == 0 or i == updates - 1:
                         log(metrics, "online", batch)
                         postfix(bar, metrics)

@@ -138,9 +138,9 @@ class FlowQTrainer:
         target (call :meth:`sync_target_critics` when that pretraining ends)."""
         if critic not in ("td", "mc"):
             raise ValueError(f"critic must be 'td' or 'mc', got {critic!r}")
+        actor = actor and self.cfg.mode != "best_of_n"  # nothing to train but the critics
         if critic == "mc" and actor:
             raise ValueError("critic='mc' pretrains the critics alone; pass actor=False")
-        actor = actor and self.cfg.mode != "best_of_n"  # nothing to train but the critics
         batch = self.shape_rewards(batch)
         if critic == "mc":
             loss_q, meta = self.loss.qvalue_regression_loss(batch, self.mc_targets(batch))
