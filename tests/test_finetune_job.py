@@ -136,10 +136,10 @@ def test_resume_matches_an_uninterrupted_run(tmp_path, data_dir, bc_checkpoint, 
     ]
     real_update = FlowQTrainer.update
 
-    def crashing_update(self, batch, actor=True):
+    def crashing_update(self, batch, actor=True, critic="td"):
         if self.updates == 12:  # inside the second online round
             raise RuntimeError("simulated crash at update 12")
-        return real_update(self, batch, actor=actor)
+        return real_update(self, batch, actor=actor, critic=critic)
 
     monkeypatch.setattr(FlowQTrainer, "update", crashing_update)
     with pytest.raises(RuntimeError, match="simulated crash"):
