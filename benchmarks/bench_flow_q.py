@@ -220,6 +220,12 @@ def main(argv: list[str] | None = None) -> int:
         help="finetune.reward_offset for the flow-Q arms (the config's default when not given)",
     )
     parser.add_argument(
+        "--critic-target",
+        default="td",
+        choices=("td", "mc"),
+        help="best_of_n: after the Monte-Carlo pretraining, TD targets or Monte-Carlo returns",
+    )
+    parser.add_argument(
         "--critic-input",
         default="action",
         choices=("action", "residual"),
@@ -255,6 +261,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.critic_input == "residual" and args.mode != "best_of_n":
         parser.error(f"--critic-input residual needs --mode best_of_n (got --mode {args.mode})")
+    if args.critic_target == "mc" and args.mode != "best_of_n":
+        parser.error(f"--critic-target mc needs --mode best_of_n (got --mode {args.mode})")
 
     shared = [f"task={args.task}", f"seed={args.seed}", f"eval.episodes={args.episodes}", *args.extra]
     ft_over = [
@@ -293,6 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         ]
         args.critic_warmup, args.critic_pretrain = 2, 1
     ft_over += [f"finetune.reward={args.reward}", f"finetune.critic_input={args.critic_input}"]
+    ft_over += [f"finetune.critic_target={args.critic_target}"]
     ft_over += [f"finetune.reward_scale={args.reward_scale}"] if args.reward_scale is not None else []
     ft_over += [f"finetune.reward_offset={args.reward_offset}"] if args.reward_offset is not None else []
     bc_over = [f"data.path={args.data}"] if args.data else [f"demos.num={args.demos}"]
@@ -305,6 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     knob += ("_sparse" if args.reward == "sparse" else "") + (
         "_residual" if args.critic_input == "residual" else ""
     )
+    knob += "_mctarget" if args.critic_target == "mc" else ""
     knob += f"_rs{args.reward_scale:g}".replace(".", "p") if args.reward_scale is not None else ""
     knob += f"_ro{args.reward_offset:g}".replace(".", "p") if args.reward_offset is not None else ""
     warm = (f"_mc{args.critic_pretrain}" if args.critic_pretrain else "") + (
@@ -369,6 +379,7 @@ def main(argv: list[str] | None = None) -> int:
         + (f" over {args.backup_samples} draws" if args.backup_samples else "")
         + (", sparse reward" if args.reward == "sparse" else "")
         + (", residual critic input" if args.critic_input == "residual" else "")
+        + (", Monte-Carlo critic targets throughout" if args.critic_target == "mc" else "")
         + (f", reward x {args.reward_scale:g}" if args.reward_scale is not None else "")
         + (f" {args.reward_offset:+g} per step" if args.reward_offset is not None else "")
         + f", gamma {args.gamma}) "

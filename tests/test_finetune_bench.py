@@ -130,3 +130,6 @@ def test_residual_critic_input_needs_best_of_n_before_anything_runs(tmp_path, ca
     assert exit_info.value.code == 2
     assert "--critic-input residual needs --mode best_of_n (got --mode distill)" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())  # refused before any run started
+    with pytest.raises(SystemExit):
+        bench_flow_q.main(["--critic-target", "mc", "--mode", "direct", "--root", str(tmp_path)])
+    assert "--critic-target mc needs --mode best_of_n (got --mode direct)" in capsys.readouterr().err
