@@ -53,6 +53,9 @@ from benchmarks.sweep import Run, _cli, _threads, rescore, train  # _cli: the sh
 #: away), so the BC arms are also scored under it: the gain credited to Q is over the better of the two
 ONE_STEP = ["policy.sampler=euler", "policy.sampler_kwargs.steps=1"]
 
+#: finetune.reward_<part> options the flow-Q arms may override -> their tag in run names
+REWARD_MAP = {"scale": "rs", "offset": "ro"}
+
 #: every imitation arm: the BC start and continued BC, each under its own and the one-step sampler
 BC_ARMS = ("bc", "bc_one_step", "bc_continued", "bc_continued_one_step")
 
@@ -207,18 +210,13 @@ def main(argv: list[str] | None = None) -> int:
         choices=("recorded", "sparse"),
         help="the critic's per-step reward: the data's recorded one, or 1 at terminal (success) steps",
     )
-    parser.add_argument(
-        "--reward-scale",
-        type=float,
-        default=None,
-        help="finetune.reward_scale for the flow-Q arms (the config's default when not given)",
-    )
-    parser.add_argument(
-        "--reward-offset",
-        type=float,
-        default=None,
-        help="finetune.reward_offset for the flow-Q arms (the config's default when not given)",
-    )
+    for part in REWARD_MAP:
+        parser.add_argument(
+            f"--reward-{part}",
+            type=float,
+            default=None,
+            help=f"finetune.reward_{part} for the flow-Q arms (the config's default when not given)",
+        )
     parser.add_argument(
         "--critic-target",
         default="td",
@@ -302,8 +300,8 @@ def main(argv: list[str] | None = None) -> int:
         args.critic_warmup, args.critic_pretrain = 2, 1
     ft_over += [f"finetune.reward={args.reward}", f"finetune.critic_input={args.critic_input}"]
     ft_over += [f"finetune.critic_target={args.critic_target}"]
-    ft_over += [f"finetune.reward_scale={args.reward_scale}"] if args.reward_scale is not None else []
-    ft_over += [f"finetune.reward_offset={args.reward_offset}"] if args.reward_offset is not None else []
+    reward_map = {p: v for p in REWARD_MAP if (v := getattr(args, f"reward_{p}")) is not None}
+    ft_over += [f"finetune.reward_{p}={v}" for p, v in reward_map.items()]
     bc_over = [f"data.path={args.data}"] if args.data else [f"demos.num={args.demos}"]
     source = args.data.stem.replace(".", "_") if args.data else f"{args.demos}demos"
     gamma = "" if args.gamma == 0.99 else f"_gamma{args.gamma:g}".replace(".", "p")
@@ -315,8 +313,7 @@ def main(argv: list[str] | None = None) -> int:
         "_residual" if args.critic_input == "residual" else ""
     )
     knob += "_mctarget" if args.critic_target == "mc" else ""
-    knob += f"_rs{args.reward_scale:g}".replace(".", "p") if args.reward_scale is not None else ""
-    knob += f"_ro{args.reward_offset:g}".replace(".", "p") if args.reward_offset is not None else ""
+    knob += "".join(f"_{REWARD_MAP[p]}{v:g}".replace(".", "p") for p, v in reward_map.items())
     warm = (f"_mc{args.critic_pretrain}" if args.critic_pretrain else "") + (
         f"_warm{args.critic_warmup}" if args.critic_warmup else ""
     )
