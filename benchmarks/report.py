@@ -371,6 +371,11 @@ def render_flow_q(d: dict) -> str:
         for name, a in d["arms"].items()
     ]
     header = ["arm", "success_once (test)", "95 % interval", "episodes", "updates", "env steps", "wall s"]
+    if d.get("extra_test_episodes"):  # each arm also scored on further test seeds: the pooled figure
+        header += ["pooled success_once", "pooled 95 %", "pooled episodes"]
+        for row, a in zip(rows, d["arms"].values()):
+            pooled = a.get("pooled") or {}
+            row += [pooled.get("success_once"), _interval(pooled.get("ci95")), pooled.get("episodes")]
     gain = d.get("gain_over_continued_bc")
     note = f"Setting: {d['setting']}. Gain of online FlowQ over continued BC: {_num(gain)}"
     best = d.get("gain_over_best_continued_bc")
@@ -387,6 +392,14 @@ def render_flow_q(d: dict) -> str:
     offline = d.get("gain_offline_over_best_bc")
     if offline is not None:
         note += f" Offline FlowQ over the best BC arm (either sampler, the start included): {_num(offline)}."
+    pooled = d.get("pooled_gains")
+    if pooled:
+        note += (
+            f" Pooled over test and extra episodes: offline FlowQ over continued BC (the better of its two "
+            f"samplers) {_num(pooled['gain_offline_over_best_continued_bc'])}, over the best BC arm "
+            f"{_num(pooled['gain_offline_over_best_bc'])}; online FlowQ over continued BC "
+            f"{_num(pooled['gain_over_best_continued_bc'])}."
+        )
     return _table(header, rows) + "\n\n" + note
 
 

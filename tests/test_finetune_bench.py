@@ -4,6 +4,7 @@ and the JSON the README would read holds each arm's success, budget and the onli
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 import torch
@@ -15,6 +16,7 @@ from benchmarks import bench_flow_q
 pytestmark = [pytest.mark.maniskill, pytest.mark.slow]
 
 
+@pytest.mark.timeout(1800)  # two benchmark invocations, 15 CLI processes with their simulator start-ups
 def test_quick_mode_runs_every_arm_and_saves_json_and_plot(tmp_path):
     out = tmp_path / "flow_q.json"
     args = [
@@ -76,6 +78,28 @@ def test_quick_mode_runs_every_arm_and_saves_json_and_plot(tmp_path):
     )
     offline_gain = report._num(figures["gain_offline_over_best_bc"])
     assert f"Offline FlowQ over the best BC arm (either sampler, the start included): {offline_gain}" in text
+    assert figures["extra_test_episodes"] == 0 and figures["pooled_gains"] is None
+    assert "pooled" not in text
+
+    # re-run with extra test episodes: the arms are read back, each model is scored on the 2 seeds
+    # after the first 2 (100002-100003), and the pooled rates and gains land beside the first ones
+    assert bench_flow_q.main([*args, "--extra-test-episodes", "2"]) == 0
+    pooled_figures = json.loads(out.read_text())
+    assert pooled_figures["extra_test_episodes"] == 2
+    for name, arm in pooled_figures["arms"].items():
+        assert arm["success_once"] == figures["arms"][name]["success_once"]  # the first 2, unchanged
+        assert arm["extra"]["episodes"] == 2 and arm["pooled"]["episodes"] == 4
+        expected = (arm["success_once"] * 2 + arm["extra"]["success_once"] * 2) / 4
+        assert arm["pooled"]["success_once"] == pytest.approx(expected)
+    runs = {name: Path(path) for name, path in pooled_figures["runs"].items()}
+    extra = json.loads((runs["flowq_offline"] / "rescore_extra2" / "eval.json").read_text())
+    assert extra["seed"] == 100002 and extra["episodes"] == 2
+    assert Path(extra["checkpoint"]).name == "latest.pt"  # FlowQ's final policy, as its own eval.json
+    bc_extra = json.loads((runs["bc"] / "rescore_extra2" / "eval.json").read_text())
+    assert Path(bc_extra["checkpoint"]).name == "best.pt"  # the BC arm's own model: its best.pt
+    bc_one_step = json.loads((runs["bc"] / "rescore_extra2_one_step" / "eval.json").read_text())
+    assert bc_one_step["nfe_per_chunk"] == 1
+    assert "pooled success_once" in report.render_flow_q(pooled_figures)
 
 
 def test_noisy_rollouts_are_recorded_by_maniskill_and_train_every_arm(tmp_path):

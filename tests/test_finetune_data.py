@@ -3,6 +3,8 @@ buffers against a hand computation, offline/online mixing, and FlowQTrainer in b
 
 from __future__ import annotations
 
+import copy
+
 import pytest
 import torch
 from omegaconf import OmegaConf
@@ -291,6 +293,43 @@ def test_best_of_n_critics_can_keep_regressing_onto_returns():
     assert (trainer.loss.target_qvalue_network_params == target0).all()
 
 
+def test_best_of_n_can_select_with_the_polyak_average_of_its_critics():
+    """finetune.select_with=target: the executed chunk is picked by the target critics, which follow
+    the Monte-Carlo-regressed critics by Polyak averaging (tau per update) instead of staying put."""
+    torch.manual_seed(0)
+    tau = 0.1
+    cfg = run_cfg(
+        **{"finetune.mode": "best_of_n", "finetune.num_samples": 4, "finetune.critic_target": "mc"},
+        **{"finetune.select_with": "target", "finetune.tau": tau, "finetune.batch_size": 64},
+    )
+    trainer = FlowQTrainer(bc_actor(), cfg.finetune)
+    buffers = RLBuffers(cfg, episodes(), rl_horizon=K, seed=0)
+    target = trainer.loss.target_qvalue_network_params
+    online = trainer.loss.qvalue_network_params
+    weights = [k for k, v in target.items(True, True) if v.is_floating_point()]  # not the normalisers' ids
+    expected = {k: target.get(k).detach().clone() for k in weights}
+    for _ in range(5):
+        trainer.update(buffers.sample_offline(), critic="mc")
+        expected = {k: (1 - tau) * v + tau * online.get(k).detach() for k, v in expected.items()}
+    assert all(torch.allclose(target.get(k), expected[k], atol=1e-6) for k in weights)
+    assert not (target == trainer.loss.qvalue_network_params.detach()).all()
+    # the acting (and saved) actor scores draws with those averaged critics
+    selecting = trainer.policy_actor.critic_params
+    assert all(
+        a.data_ptr() == b.data_ptr() for a, b in zip(selecting.values(True, True), target.values(True, True))
+    )
+    saved = {k: v for k, v in trainer.policy_actor.state_dict().items() if k.startswith("critic_params.")}
+    assert saved and all(torch.equal(v, selecting.get(tuple(k.split(".")[1:]))) for k, v in saved.items())
+    # the default selects with the critics being trained, and Monte-Carlo updates leave the targets
+    plain = FlowQTrainer(
+        bc_actor(), run_cfg(**{"finetune.mode": "best_of_n", "finetune.critic_target": "mc"}).finetune
+    )
+    target0 = plain.loss.target_qvalue_network_params.clone()
+    plain.update(buffers.sample_offline(), critic="mc")
+    assert (plain.loss.target_qvalue_network_params == target0).all()
+    assert plain.policy_actor.critic_params is plain.loss.qvalue_network_params
+
+
 def test_bad_mixing_and_mode_are_named():
     with pytest.raises(ValueError, match=r"online\.mixing='half'"):
         RLBuffers(run_cfg(**{"online.mixing": "half"}), episodes(), rl_horizon=K, seed=0)
@@ -317,6 +356,7 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
             "finetune.critic_input=residual",
             "finetune.reward=dense",
             "finetune.critic_target=mc",
+            "finetune.select_with=target",
         ]
     )
     err = capsys.readouterr().err
@@ -330,7 +370,22 @@ def test_bad_finetune_settings_fail_at_config_time(capsys):
     assert "finetune.critic_input=residual needs finetune.mode=best_of_n" in err
     assert "finetune.reward='dense': expected one of ['recorded', 'sparse']" in err
     assert "finetune.critic_target=mc needs finetune.mode=best_of_n" in err
+    assert "finetune.select_with=target needs finetune.mode=best_of_n" in err
     code = main(["finetune", "checkpoint=missing.pt", "online.steps=100", "online.frames_per_round=200"])
     err = capsys.readouterr().err
     assert code == 2 and "online.frames_per_round=200 gives each of online.num_envs=2 envs 100 steps" in err
     assert "fewer than task.max_episode_steps=150" in err and "use at least 300" in err
+
+
+def test_a_run_made_before_a_setting_existed_resumes_only_under_its_old_behaviour(tmp_path):
+    from l1flow_rl.workspace.checkpoint import CheckpointMismatchError
+    from l1flow_rl.workspace.finetune import _check_resume
+
+    current = OmegaConf.to_container(run_cfg(**{"finetune.mode": "best_of_n"}), resolve=True)
+    saved = copy.deepcopy(current)
+    for field in ("select_with", "critic_target"):  # a checkpoint from before these fields
+        del saved["finetune"][field]
+    _check_resume(saved, current, tmp_path / "latest.pt")  # the defaults behave as it did
+    current["finetune"]["select_with"] = "target"
+    with pytest.raises(CheckpointMismatchError, match=r"finetune\.select_with: checkpoint has 'critic'"):
+        _check_resume(saved, current, tmp_path / "latest.pt")

@@ -68,6 +68,16 @@ def _select(cfg: dict, dotted: str) -> Any:
     return node
 
 
+#: settings added after runs were made -> the value that behaves as runs made before them did (a
+#: checkpoint without the field resumes under that value, and only under it)
+_ADDED_LATER = {
+    "finetune.reward": "recorded",
+    "finetune.critic_input": "action",
+    "finetune.critic_target": "td",
+    "finetune.select_with": "critic",
+}
+
+
 def _check_resume(saved: dict, current: dict, path: Path) -> None:
     diffs = [
         f"{f}: checkpoint has {_select(saved, f)!r}, config asks for {_select(current, f)!r}"
@@ -76,6 +86,7 @@ def _check_resume(saved: dict, current: dict, path: Path) -> None:
     ]
     for group in ("finetune", "offline", "online"):
         old, new = _flat(saved.get(group, {}), group), _flat(current.get(group, {}), group)
+        old.update({k: v for k, v in _ADDED_LATER.items() if k.startswith(f"{group}.") and k not in old})
         diffs += [
             f"{k}: checkpoint has {old.get(k)!r}, config asks for {new.get(k)!r}"
             for k in sorted(set(old) | set(new))
@@ -283,7 +294,9 @@ def run_finetune(cfg: DictConfig) -> int:
         done_before = progress["offline_updates"]
         if done_before < ocfg.critic_pretrain:
             metrics = trainer.update(batch, actor=False, critic="mc")
-            if done_before + 1 == ocfg.critic_pretrain:
+            # TD bootstraps from the target critics: they start from the fitted ones. Without TD they
+            # only select (select_with=target), and keep their average
+            if done_before + 1 == ocfg.critic_pretrain and fcfg.critic_target == "td":
                 trainer.sync_target_critics()
         else:
             metrics = trainer.update(batch, actor=done_before >= critic_only, critic=fcfg.critic_target)
@@ -297,7 +310,8 @@ def run_finetune(cfg: DictConfig) -> int:
             evaluator is not None
             and ocfg.eval_every
             and progress["offline_updates"] % ocfg.eval_every == 0
-            and progress["offline_updates"] > critic_only  # the actor has not moved before
+            # the acting policy changes with the actor, or in best_of_n with the selecting critics
+            and (progress["offline_updates"] > critic_only or fcfg.mode == "best_of_n")
         ):
             evaluate_now("offline")
         if progress["offline_updates"] % fcfg.checkpoint_every == 0 or done:

@@ -88,13 +88,18 @@ class FlowQTrainer:
         )
         self.rl_horizon = h
         # the actor that acts (evaluation, collection, checkpoints): best_of_n selects among the
-        # policy's chunks with the critics being trained (their parameters are shared, not copied)
+        # policy's chunks with the critics being trained, or their Polyak average (finetune.select_with);
+        # the parameters are shared, not copied, so selection follows training
         self.policy_actor: TensorDictModuleBase = self.actor
+        self.select_with_target = cfg.mode == "best_of_n" and cfg.get("select_with", "critic") == "target"
         if cfg.mode == "best_of_n":
+            selecting = self.loss.qvalue_network_params
+            if self.select_with_target:
+                selecting = self.loss.target_qvalue_network_params
             self.policy_actor = BestOfNActor(
                 self.actor,
                 self.loss.qvalue_network,
-                self.loss.qvalue_network_params,
+                selecting,
                 num_samples=cfg.num_samples,
                 rl_horizon=h,
                 critic_input=cfg.critic_input,
@@ -158,7 +163,9 @@ class FlowQTrainer:
         clip = self.cfg.grad_clip if self.cfg.grad_clip > 0 else float("inf")
         grad_norm = torch.nn.utils.clip_grad_norm_(params, clip)
         self.optimizer.step()
-        if critic == "td":  # Monte-Carlo regression bootstraps from nothing: no target to track
+        # Monte-Carlo regression bootstraps from nothing, so the target critics only track it when
+        # they select (finetune.select_with=target)
+        if critic == "td" or self.select_with_target:
             self.updater.step()
         self.updates += 1
         metrics = {k: float(v.detach()) for k, v in out.items() if v.numel() == 1}
