@@ -310,8 +310,8 @@ def run_finetune(cfg: DictConfig) -> int:
             evaluator is not None
             and ocfg.eval_every
             and progress["offline_updates"] % ocfg.eval_every == 0
-            # the acting policy changes with the actor, or in best_of_n with the selecting critics
-            and (progress["offline_updates"] > critic_only or fcfg.mode == "best_of_n")
+            # the acting policy changes with the actor, or with the critics where they select
+            and (progress["offline_updates"] > critic_only or trainer.critics_act)
         ):
             evaluate_now("offline")
         if progress["offline_updates"] % fcfg.checkpoint_every == 0 or done:

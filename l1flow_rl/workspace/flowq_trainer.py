@@ -91,7 +91,9 @@ class FlowQTrainer:
         # policy's chunks with the critics being trained, or their Polyak average (finetune.select_with);
         # the parameters are shared, not copied, so selection follows training
         self.policy_actor: TensorDictModuleBase = self.actor
-        self.select_with_target = cfg.mode == "best_of_n" and cfg.get("select_with", "critic") == "target"
+        # best_of_n acts through its critics: a critic-only update changes the acting policy too
+        self.critics_act = cfg.mode == "best_of_n"
+        self.select_with_target = self.critics_act and cfg.select_with == "target"
         if cfg.mode == "best_of_n":
             selecting = self.loss.qvalue_network_params
             if self.select_with_target:
