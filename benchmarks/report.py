@@ -187,15 +187,34 @@ def _pooled_interval(per_seed: list[dict]) -> str:
 
 
 def render_ablations(d: dict) -> str:
-    rows = [
-        [name, b["kind"], b["success_once"]["mean"], b["success_once"]["std"], b["success_once"]["n"]]
-        for name, b in d["variants"].items()
-    ]
+    """One row per variant: per-seed rates, the pooled interval, and the paired difference from the
+    default on the same seeds (sampler swaps re-score the default's own networks, so the pairing
+    removes the seed-to-seed spread that dwarfs most effects at this scale)."""
+    variants = d["variants"]
+    default = [r["success_once"] for r in variants.get("default", {}).get("per_seed", [])]
+    rows = []
+    for name, b in variants.items():
+        per_seed = [r["success_once"] for r in b["per_seed"]]
+        paired = [v - base for v, base in zip(per_seed, default)] if name != "default" else []
+        rows.append(
+            [
+                name,
+                b["kind"],
+                " / ".join(f"{v:.2f}" for v in per_seed),
+                b["success_once"]["mean"],
+                _pooled_interval(b["per_seed"]),
+                f"{sum(paired) / len(paired):+.3f}" if paired else "–",
+            ]
+        )
     a = d.get("args", {})
     setting = f"Setting: {a.get('task')}, {a.get('demos')} demonstrations, {a.get('steps')} training steps, "
-    setting += f"{a.get('eval_episodes')} test episodes per seed; "
-    setting += "sampler variants re-score the default network."
-    return _table(["variant", "kind", "success_once", "std", "seeds"], rows) + "\n\n" + setting
+    seeds = ", ".join(map(str, a.get("seeds", [])))
+    setting += f"{a.get('eval_episodes')} test episodes per seed (seeds {seeds}); "
+    setting += "sampler variants re-score the default network; loss variants retrain it. "
+    setting += "95 % interval: Wilson's over every seed's test episodes pooled. "
+    setting += "Δ: mean over seeds of (variant − default on the same seed)."
+    header = ["variant", "kind", "per seed", "mean", "95 % interval", "Δ vs default"]
+    return _table(header, rows) + "\n\n" + setting
 
 
 def render_env_throughput(d: dict) -> str:

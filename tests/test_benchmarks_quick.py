@@ -84,6 +84,31 @@ def test_report_builds_the_readme_section_from_saved_results_only(tmp_path):
     assert report.main(["--readme", str(readme), "--results", str(results), "--check"]) == 0
 
 
+def test_ablations_table_pairs_each_variant_with_the_default_on_the_same_seed():
+    from benchmarks import report
+
+    def block(kind, rates):
+        per_seed = [{"success_once": r, "episodes": 50} for r in rates]
+        return {"kind": kind, "success_once": {"mean": sum(rates) / len(rates)}, "per_seed": per_seed}
+
+    d = {
+        "args": {
+            "task": "maniskill_pushcube",
+            "demos": 20,
+            "steps": 2500,
+            "eval_episodes": 50,
+            "seeds": [0, 1],
+        },
+        "variants": {"default": block("loss", [0.5, 0.7]), "euler1": block("sampler", [0.56, 0.76])},
+    }
+    text = report.render_ablations(d)
+    # paired: ((0.56 - 0.5) + (0.76 - 0.7)) / 2 = +0.06; pooled Wilson of 66 in 100: [0.563, 0.745]
+    assert "| euler1 | sampler | 0.56 / 0.76 | 0.66 | [0.56, 0.75] | +0.060 |" in text
+    # pooled Wilson over 100 episodes with 60 successes: [0.502, 0.691]
+    assert "| default | loss | 0.50 / 0.70 | 0.6 | [0.50, 0.69] | – |" in text
+    assert "seeds 0, 1" in text
+
+
 @pytest.mark.slow
 @pytest.mark.maniskill
 def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
