@@ -451,8 +451,12 @@ RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
 
 
 def build_section(results: Path = RESULTS) -> str:
+    from benchmarks.claims import claims_table
+
     parts = [BEGIN, ""]
-    unrendered = []
+    claims = claims_table(results)
+    if claims:  # the digest first: each claim, its figures and a rule's verdict
+        parts += ["#### The paper's four claims, as measured here", "", claims, ""]
     files = sorted(results.glob("*.json"))
     for pattern, title, render in RENDERERS:
         for path in files:

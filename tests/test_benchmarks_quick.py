@@ -109,6 +109,52 @@ def test_ablations_table_pairs_each_variant_with_the_default_on_the_same_seed():
     assert "seeds 0, 1" in text
 
 
+def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradictions(tmp_path):
+    from benchmarks.claims import claims_table
+
+    assert claims_table(tmp_path) is None  # nothing measured, no table
+
+    def method(rates, steps):
+        per_seed = [{"success_once": r, "episodes": 50} for r in rates]
+        mean = sum(rates) / len(rates)
+        stats = {"mean": mean, "n": len(rates)}
+        return {
+            "metric": "success_once",
+            "success_once": stats,
+            "per_seed": per_seed,
+            "steps_to_90pct_of_best": steps,
+        }
+
+    tasks = {
+        # L1 Flow clearly below DDPM-100 (pooled 30/100 against 90/100), yet it converges in fewer steps
+        "a": {"l1flow": method([0.3, 0.3], [500, 500]), "ddpm": method([0.9, 0.9], [1500, 2500])},
+        # within each other's intervals, but flow reaches 90 % of its best sooner
+        "b": {"l1flow": method([0.8, 0.84], [1000, 1000]), "flow": method([0.82, 0.84], [500, 500])},
+    }
+    (tmp_path / "success_x.json").write_text(json.dumps({"quick": False, "tasks": tasks}))
+    (tmp_path / "success_y_quick.json").write_text(json.dumps({"quick": True, "tasks": tasks}))
+    latency = {
+        "machine": {"device": "cpu"},
+        "inference": {
+            "batch1": {
+                "ms": {"l1flow_2nfe": {"wall_ms": 2.0}},
+                "slowdown_vs_l1flow": {"ddim16": 7.9, "ddpm100": 48.0},
+            }
+        },
+    }
+    (tmp_path / "latency.json").write_text(json.dumps(latency))
+    text = claims_table(tmp_path)
+    rows = {line.split(" | ")[1]: line for line in text.splitlines() if line.startswith("| ") and "(" in line}
+    assert text.count("`success_x.json`") == 4 and "success_y_quick" not in text  # quick files never count
+    a, b = (line for line in text.splitlines() if "2 NFE match" in line)
+    assert a.endswith("| below DDPM-100 |") and b.endswith("| holds |")
+    conv_a, conv_b = (line for line in text.splitlines() if "converges faster" in line)
+    assert "DDPM-100 4× the steps | fewer steps than all |" in conv_a  # (1500 + 2500) / 2 / 500
+    assert "flow (Euler 10) 0.5× the steps | not fewer than flow (Euler 10) |" in conv_b
+    speed = rows["state UNet, batch1, cpu (`latency.json`)"]
+    assert "DDIM-16 7.9× slower; DDPM-100 48× slower | outside 10-70× for ddim16 |" in speed
+
+
 @pytest.mark.slow
 @pytest.mark.maniskill
 def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
