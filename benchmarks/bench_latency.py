@@ -1,9 +1,12 @@
 """Per-chunk inference latency of one network under every sampler, beside the peers' own path and the
 floor, plus the training-step time of each loss, all in one run (the paper's speed claim).
 
-The network is the one ``l1flow-rl train`` builds by default (``PolicyConfig``: ConditionalUnet1D,
-down_dims 64/128/256, To=2, H=16, K=8) for a ManiSkill-PushCube-sized state (D=35, A=4); weights do
-not change the time, so one network serves every sampler.
+``--network state`` (default): the network ``l1flow-rl train`` builds by default (``PolicyConfig``:
+ConditionalUnet1D, down_dims 64/128/256, To=2, H=16, K=8) for a ManiSkill-PushCube-sized state
+(D=35, A=4). ``--network image``: the one ``l1flow-rl train task=maniskill_pushcube_rgb`` builds
+(the same UNet behind the ResNet-18 GroupNorm encoder, 128x128 RGB cropped to 0.9, plus a 25-D
+state), saved as ``latency_image.json``. Weights do not change the time, so one network serves every
+sampler.
 
 Inference, one action chunk through ``L1FlowActor`` (observation in, executable window out), at
 batch 1 and 64:
@@ -19,8 +22,10 @@ Reported: median wall and process-CPU milliseconds, L1 Flow's overhead over the 
 <= 1.05x), and speed-ups of L1 Flow over each method as ratios from this run. Training: one AdamW
 step of each loss at batch 256. Methods take turns within each round, so drifting load hits them
 alike. ``--threads`` defaults to 1: on a busy 2-core machine torch's intra-op threads spin-wait.
+The image network's training step is ``bench_image_train``'s subject, so ``--network image`` times
+inference only.
 
-    .venv/bin/python -m benchmarks.bench_latency [--quick] [--device cpu] [--out PATH]
+    .venv/bin/python -m benchmarks.bench_latency [--quick] [--network state|image] [--out PATH]
 """
 
 from __future__ import annotations
@@ -61,14 +66,44 @@ TRAINED = {
 }
 
 
-def build_actor(method: str, device: torch.device, policy: PolicyConfig | None = None) -> L1FlowActor:
-    """The policy config's network, built as the train job builds it, with ``method``'s sampler."""
+IMAGE_TASK = "maniskill_pushcube_rgb"
+
+
+def _image_setup(quick: bool = False) -> tuple[dict, dict, dict]:
+    """The image task's policy and encoder configs as the train job composes them, and its shapes."""
+    from omegaconf import OmegaConf
+
+    from benchmarks.bench_image_latency import SIDE, STATE_DIM
+    from l1flow_rl.cli import compose_config
+
+    overrides = [f"task={IMAGE_TASK}", "encoder=resnet18_gn"]
+    cfg = compose_config([*overrides, *(["policy.down_dims=[16,32]"] if quick else [])])
+    policy, encoder = (OmegaConf.to_container(c, resolve=True) for c in (cfg.policy, cfg.encoder))
+    return policy, encoder, {"state": (STATE_DIM,), "rgb": (3, SIDE, SIDE)}
+
+
+def build_actor(
+    method: str,
+    device: torch.device,
+    policy: PolicyConfig | None = None,
+    network: str = "state",
+    quick: bool = False,
+) -> L1FlowActor:
+    """The network as the train job builds it (state, or the image task's), with ``method``'s sampler."""
     sampler, options = SAMPLERS[method]
+    if network == "image":
+        cfg, encoder, shapes = _image_setup(quick)
+        cfg = {**cfg, "sampler": sampler, "sampler_kwargs": options}
+        return build_policy_actor(cfg, shapes, ACTION_DIM, encoder).to(device).eval()
     cfg = dataclasses.replace(policy or PolicyConfig(), sampler=sampler, sampler_kwargs=options)
     return build_policy_actor(dataclasses.asdict(cfg), {"state": (OBS_DIM,)}, ACTION_DIM).to(device).eval()
 
 
-def _observation(batch: int, device: torch.device) -> TensorDict:
+def _observation(batch: int, device: torch.device, network: str = "state") -> TensorDict:
+    if network == "image":
+        from benchmarks.bench_image_latency import observation
+
+        return observation(batch, PolicyConfig().obs_horizon, device)
     return TensorDict(
         {"observation": torch.randn(batch, PolicyConfig().obs_horizon, OBS_DIM)}, [batch], device=device
     )
@@ -125,12 +160,14 @@ def _floor_call(actor: L1FlowActor, obs: TensorDict) -> Callable[[], None]:
     return call
 
 
-def inference_calls(device: torch.device, batch: int, peers: bool) -> dict[str, Callable[[], None]]:
-    obs = _observation(batch, device)
-    base = build_actor("l1flow_2nfe", device)
+def inference_calls(
+    device: torch.device, batch: int, peers: bool, network: str = "state", quick: bool = False
+) -> dict[str, Callable[[], None]]:
+    obs = _observation(batch, device, network)
+    base = build_actor("l1flow_2nfe", device, network=network, quick=quick)
     calls: dict[str, Callable[[], None]] = {"floor_2_unet": _floor_call(base, obs)}
     for method in SAMPLERS:
-        actor = build_actor(method, device)
+        actor = build_actor(method, device, network=network, quick=quick)
         if method != "regression":  # regression's UNet has no timestep input: its own network
             # The same network object under each sampler (and under the floor and diffusers' loops):
             # with one call per method per round, separate copies of the weights would each start
@@ -141,7 +178,7 @@ def inference_calls(device: torch.device, batch: int, peers: bool) -> dict[str, 
 
         @torch.inference_mode()
         def call(actor=actor) -> None:
-            actor(obs)  # overwrites "action_chunk" in place, as an env loop would
+            actor(obs.clone() if network == "image" else obs)  # "action_chunk" lands in the input
 
         calls[method] = call
     if peers:
@@ -187,12 +224,18 @@ def run(args: argparse.Namespace) -> dict:
     device = torch.device(args.device)
     torch.manual_seed(0)
     figures: dict = {"machine": machine_info(device), "quick": args.quick}
+    actor = build_actor("l1flow_2nfe", device, network=args.network, quick=args.quick)
     figures["network"] = {
-        "obs_dim": OBS_DIM,
+        "kind": args.network,
+        "obs_dim": OBS_DIM if args.network == "state" else None,
         "action_dim": ACTION_DIM,
-        "down_dims": list(PolicyConfig().down_dims),
-        "parameters": sum(p.numel() for p in build_actor("l1flow_2nfe", device).parameters()),
+        "down_dims": list(_image_setup(args.quick)[0]["down_dims"])
+        if args.network == "image"
+        else list(PolicyConfig().down_dims),
+        "parameters": sum(p.numel() for p in actor.parameters()),
     }
+    if args.network == "image":
+        figures["network"]["task"] = IMAGE_TASK
     figures["nfe"] = {m: nfe_of(m) for m in SAMPLERS} | {
         "floor_2_unet": 2,
         "diffusers_ddpm100": 100,
@@ -200,7 +243,8 @@ def run(args: argparse.Namespace) -> dict:
     }
     figures["inference"] = {}
     for batch in args.batches:
-        times = interleaved(inference_calls(device, batch, peers=not args.no_peers), args.rounds, device)
+        calls = inference_calls(device, batch, not args.no_peers, args.network, args.quick)
+        times = interleaved(calls, args.rounds, device)
         ref = times["l1flow_2nfe"]
         figures["inference"][f"batch{batch}"] = {
             "ms": {k: {m: round(v, 3) for m, v in r.items()} for k, r in times.items()},
@@ -209,7 +253,7 @@ def run(args: argparse.Namespace) -> dict:
             "l1flow_over_floor": round(ref["wall_ms"] / times["floor_2_unet"]["wall_ms"], 3),
             "l1flow_chunks_per_s": round(1e3 / ref["wall_ms"], 1),
         }
-    if not args.no_train:
+    if not args.no_train and args.network == "state":
         train = interleaved(training_steps(device, args.train_batch), args.train_rounds, device)
         figures["train_step_ms"] = {
             "batch": args.train_batch,
@@ -221,7 +265,8 @@ def run(args: argparse.Namespace) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="benchmarks/results/latency.json")
+    parser.add_argument("--out", default=None, help="default: benchmarks/results/latency[_image].json")
+    parser.add_argument("--network", choices=("state", "image"), default="state")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (0: torch's default)")
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 64])
@@ -234,6 +279,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.quick:
         args.batches, args.rounds, args.train_batch, args.train_rounds = [1], 1, 8, 1
+    if args.out is None:
+        args.out = f"benchmarks/results/latency{'_image' if args.network == 'image' else ''}.json"
     figures = run(args)
     save_results(args.out, figures)
     for name, block in figures["inference"].items():

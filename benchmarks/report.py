@@ -92,7 +92,11 @@ def render_main_job(d: dict) -> str:
 
 
 def render_latency(d: dict) -> str:
-    out = []
+    net = d.get("network") or {}
+    out = [
+        f"Network: {net.get('task', 'state')} ({_num(net.get('parameters'))} parameters, UNet "
+        f"{'/'.join(map(str, net.get('down_dims', [])))}).\n"
+    ]
     for batch, block in d["inference"].items():
         rows = [
             [name, d["nfe"].get(name), ms["wall_ms"], ms["cpu_ms"], block["slowdown_vs_l1flow"][name]]
@@ -425,7 +429,8 @@ def render_flow_q(d: dict) -> str:
 #: file-name pattern -> (section title, renderer)
 RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
     (r"main_job\.json", "Main job", render_main_job),
-    (r"latency\.json", "Inference latency and training step", render_latency),
+    (r"latency\.json", "Inference latency and training step (state network)", render_latency),
+    (r"latency_image\.json", "Inference latency (image network)", render_latency),
     (r"success_.*\.json", "Success and convergence", render_success),
     (r"ablations_.*\.json", "Ablations", render_ablations),
     (r"flow_q_.*\.json", "Flow-Q fine-tuning against continued BC", render_flow_q),

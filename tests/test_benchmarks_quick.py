@@ -61,6 +61,20 @@ def test_multimodal_quick_mode_reports_every_family_and_evaluation(tmp_path):
             assert sum(r["shares"]) + r["share_neither"] == pytest.approx(1.0)
 
 
+def test_latency_quick_mode_times_the_image_network_under_every_sampler(tmp_path):
+    out = tmp_path / "latency_image.json"
+    assert bench_latency.main(["--quick", "--network", "image", "--no-peers", "--out", str(out)]) == 0
+    figures = json.loads(out.read_text())
+    net = figures["network"]
+    assert net["kind"] == "image" and net["task"] == "maniskill_pushcube_rgb" and net["down_dims"] == [16, 32]
+    # the ResNet-18 trunk alone has ~11M parameters: the encoder is in the timed network
+    assert net["parameters"] > 10_000_000
+    block = figures["inference"]["batch1"]
+    assert set(block["ms"]) == set(bench_latency.SAMPLERS) | {"floor_2_unet"}
+    assert all(v["wall_ms"] > 0 for v in block["ms"].values())
+    assert "train_step_ms" not in figures  # bench_image_train times the image network's training
+
+
 def test_report_builds_the_readme_section_from_saved_results_only(tmp_path):
     from benchmarks import report
 
