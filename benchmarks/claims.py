@@ -29,6 +29,10 @@ def _load(path: Path) -> dict[str, Any] | None:
     return None if not isinstance(data, dict) or data.get("quick") else data
 
 
+def _ms(value: float) -> str:
+    return f"{value:,.0f}" if value >= 100 else f"{value:.3g}"
+
+
 def _pooled(per_seed: list[dict[str, Any]]) -> tuple[float, float] | None:
     from l1flow_rl.evaluation import wilson_interval
 
@@ -103,13 +107,17 @@ def _speed_rows(results: Path) -> list[list[str]]:
                 f"{'DDIM-16' if k == 'ddim16' else 'DDPM-100'} {v:.3g}× slower" for k, v in picked.items()
             ]
             outside = [k for k, v in picked.items() if not lo <= v <= hi]
-            verdict = "within 10-70×" if not outside else "outside 10-70× for " + ", ".join(outside)
+            verdict = (
+                "within 10-70×"
+                if not outside
+                else "outside 10-70× for " + ", ".join(LABEL[k] for k in outside)
+            )
             device = d["machine"].get("device", "cpu")
             rows.append(
                 [
                     "10-70× faster than DDIM-16 / DDPM-100",
                     f"{network}, {batch}, {device} (`{name}`)",
-                    f"{block['ms']['l1flow_2nfe']['wall_ms']:.3g} ms per chunk",
+                    f"{_ms(block['ms']['l1flow_2nfe']['wall_ms'])} ms per chunk",
                     "; ".join(cells),
                     verdict,
                 ]

@@ -166,7 +166,7 @@ def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradic
     assert "DDPM-100 4× the steps | fewer steps than all |" in conv_a  # (1500 + 2500) / 2 / 500
     assert "flow (Euler 10) 0.5× the steps | not fewer than flow (Euler 10) |" in conv_b
     speed = rows["state UNet, batch1, cpu (`latency.json`)"]
-    assert "DDIM-16 7.9× slower; DDPM-100 48× slower | outside 10-70× for ddim16 |" in speed
+    assert "DDIM-16 7.9× slower; DDPM-100 48× slower | outside 10-70× for DDIM-16 |" in speed
 
 
 @pytest.mark.slow
