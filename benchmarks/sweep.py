@@ -22,6 +22,7 @@ from typing import Any
 
 __all__ = [
     "Run",
+    "convergence_steps",
     "headline_metric",
     "make_demos",
     "mean_and_spread",
@@ -30,6 +31,7 @@ __all__ = [
     "run_budget",
     "seed_record",
     "steps_to_fraction_of_best",
+    "still_rising",
     "train",
     "train_side_by_side",
 ]
@@ -209,6 +211,27 @@ def steps_to_fraction_of_best(curve: Sequence[tuple[int, float]], fraction: floa
     if best <= 0:
         return None
     return next(step for step, v in curve if v >= fraction * best)
+
+
+def still_rising(curve: Sequence[tuple[int, float]], fraction: float = 0.9) -> bool:
+    """Whether the curve first came within ``fraction`` of its best at its last validation: it had not
+    flattened within the budget, so its steps-to-``fraction`` is a lower bound, not a measurement."""
+    if len(curve) < 2:
+        return False
+    return steps_to_fraction_of_best(curve, fraction) == curve[-1][0]
+
+
+def convergence_steps(block: dict[str, Any]) -> list[tuple[int, bool]]:
+    """Per seed of a success file's method block: (steps to 90 % of its best, still rising at the end).
+
+    Read from the saved curves where the block has them (files from before ``still_rising`` existed
+    included), else from its steps-to-90 % figures, which cannot say whether a curve was still rising."""
+    curves = [[(int(s), float(v)) for s, v in c] for c in block.get("curves") or []]
+    if curves:
+        steps = [(steps_to_fraction_of_best(c), still_rising(c)) for c in curves]
+    else:
+        steps = [(s, False) for s in block.get("steps_to_90pct_of_best") or []]
+    return [(s, rising) for s, rising in steps if s]
 
 
 def mean_and_spread(values: Sequence[float]) -> dict[str, float]:

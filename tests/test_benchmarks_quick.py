@@ -144,6 +144,16 @@ def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradic
         "a": {"l1flow": method([0.3, 0.3], [500, 500]), "ddpm": method([0.9, 0.9], [1500, 2500])},
         # within each other's intervals, but flow reaches 90 % of its best sooner
         "b": {"l1flow": method([0.8, 0.84], [1000, 1000]), "flow": method([0.82, 0.84], [500, 500])},
+        # from curves: flow's second seed first nears its best at its last validation (still rising),
+        # so its 1.5x is a lower bound; DDPM-100's 0.75x is a measurement
+        "c": {
+            "l1flow": {**method([0.8], []), "curves": [[[500, 0.1], [1000, 0.8], [1500, 0.8]]]},
+            "flow": {
+                **method([0.3], []),
+                "curves": [[[500, 0.0], [1000, 0.3]], [[500, 0.1], [1000, 0.1], [1500, 0.4]]],
+            },
+            "ddpm": {**method([0.8], []), "curves": [[[500, 0.0], [750, 0.8], [1500, 0.8]]]},
+        },
     }
     (tmp_path / "success_x.json").write_text(json.dumps({"quick": False, "tasks": tasks}))
     (tmp_path / "success_y_quick.json").write_text(json.dumps({"quick": True, "tasks": tasks}))
@@ -159,10 +169,13 @@ def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradic
     (tmp_path / "latency.json").write_text(json.dumps(latency))
     text = claims_table(tmp_path)
     rows = {line.split(" | ")[1]: line for line in text.splitlines() if line.startswith("| ") and "(" in line}
-    assert text.count("`success_x.json`") == 4 and "success_y_quick" not in text  # quick files never count
-    a, b = (line for line in text.splitlines() if "2 NFE match" in line)
+    assert text.count("`success_x.json`") == 6 and "success_y_quick" not in text  # quick files never count
+    a, b, _ = (line for line in text.splitlines() if "2 NFE match" in line)
     assert a.endswith("| below DDPM-100 |") and b.endswith("| holds |")
-    conv_a, conv_b = (line for line in text.splitlines() if "converges faster" in line)
+    conv_a, conv_b, conv_c = (line for line in text.splitlines() if "converges faster" in line)
+    # flow: (1000 + 1500) / 2 / 1000, a bound since one seed was still rising; DDPM-100: 750 / 1000
+    expected = "flow (Euler 10) ≥ 1.2× the steps (still rising); DDPM-100 0.75× the steps"
+    assert f"| 1,000 steps to 90 % of best | {expected} | not fewer than DDPM-100 |" in conv_c
     assert "DDPM-100 4× the steps | fewer steps than all |" in conv_a  # (1500 + 2500) / 2 / 500
     assert "flow (Euler 10) 0.5× the steps | not fewer than flow (Euler 10) |" in conv_b
     speed = rows["state UNet, batch1, cpu (`latency.json`)"]
