@@ -43,6 +43,8 @@ def test_a_task_brings_its_default_budget_and_the_command_line_wins():
     assert compose_config(["task=maniskill_stackcube", "demos.num=20"]).demos.num == 20
     assert compose_config(["task=maniskill_stackcube", "demos=default"]).demos.num == 100
     assert default.demos.num == 100 and compose_config(["demos=n300"]).demos.num == 300
+    pusht = compose_config(["task=pusht"])  # its budget and demos from its success curve
+    assert (pusht.train.steps, pusht.train.eval_every, pusht.demos.num) == (8000, 2000, 200)
     assert load_task_config("maniskill_stackcube").env_id == "StackCube-v1"  # defaults list: not a field
 
 
