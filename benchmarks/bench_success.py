@@ -38,6 +38,7 @@ from benchmarks.sweep import (
     headline_metric,
     make_demos,
     mean_and_spread,
+    plot_success_curves,
     read_history,
     rescore,
     rescore_side_by_side,
@@ -59,37 +60,6 @@ DDPM_VALIDATION = {"ddpm100": [], "ddim16": ["eval.val_sampler=ddim", "eval.val_
 def _task_overrides(extra: list[str]) -> list[str]:
     """The task fields among the sweep's overrides, which re-scoring must see too."""
     return [o for o in extra if o.startswith("task.")]
-
-
-def _plot(results: dict[str, Any], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    tasks = list(results)
-    fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 3.6), squeeze=False)
-    for ax, task in zip(axes[0], tasks):
-        for method, block in results[task].items():
-            curves = [c for c in block["curves"] if c]
-            if not curves:
-                continue
-            steps = sorted({s for c in curves for s, _ in c})
-            values = [[v for c in curves if (v := dict(c).get(s)) is not None] for s in steps]
-            mean = [sum(vs) / len(vs) for vs in values]
-            lo, hi = [min(vs) for vs in values], [max(vs) for vs in values]
-            (line,) = ax.plot(steps, mean, "o-", ms=3, label=method)
-            ax.fill_between(steps, lo, hi, color=line.get_color(), alpha=0.15)
-        ax.set_title(task, fontsize=9)
-        ax.set_xlabel("training step")
-        ax.set_ylim(-0.05, 1.05)
-        ax.grid(alpha=0.3)
-    metric = next((b["metric"] for block in results.values() for b in block.values()), "success_once")
-    axes[0][0].set_ylabel(f"{metric} (validation seeds)")
-    axes[0][-1].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
 
 
 def _rescore_plan(policy: str, args: argparse.Namespace) -> list[tuple[str, str, list[str]]]:
@@ -233,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         out = root / out.name
     save_results(out, figures)
-    _plot(results, out.with_suffix(".png"))
+    plot_success_curves(results, out.with_suffix(".png"))
     rows = [
         {
             "task": task,

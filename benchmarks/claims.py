@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-__all__ = ["claims_table"]
+__all__ = ["claims_table", "pooled_interval"]
 
 #: multi-step methods the 2-NFE policy is compared with, as success files label them
 MULTI_STEP = {"flow": "flow (Euler 10)", "ddpm": "DDPM-100", "ddpm_ddim16": "DDIM-16"}
@@ -33,7 +33,8 @@ def _ms(value: float) -> str:
     return f"{value:,.0f}" if value >= 100 else f"{value:.3g}"
 
 
-def _pooled(per_seed: list[dict[str, Any]]) -> tuple[float, float] | None:
+def pooled_interval(per_seed: list[dict[str, Any]]) -> tuple[float, float] | None:
+    """Wilson's 95 % interval of success_once over every seed's test episodes together."""
     from l1flow_rl.evaluation import wilson_interval
 
     counted = [(r["success_once"], r["episodes"]) for r in per_seed if r.get("episodes")]
@@ -59,11 +60,11 @@ def _success_rows(results: Path) -> list[list[str]]:
             mine = own[metric]["mean"]
             cells = [f"{MULTI_STEP[k]} {b[metric]['mean']:.3f}" for k, b in others.items()]
             if metric == "success_once":  # Wilson intervals over the seeds' test episodes pooled
-                mine_ci = _pooled(own["per_seed"])
+                mine_ci = pooled_interval(own["per_seed"])
                 below = [
                     k
                     for k, b in others.items()
-                    if mine_ci and (ci := _pooled(b["per_seed"])) and mine_ci[1] < ci[0]
+                    if mine_ci and (ci := pooled_interval(b["per_seed"])) and mine_ci[1] < ci[0]
                 ]
             else:  # PushT's score carries no interval here
                 below = [k for k, b in others.items() if b[metric]["mean"] > mine]

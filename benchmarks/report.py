@@ -25,6 +25,8 @@ __all__ = ["build_section", "main"]
 
 BEGIN, END = "<!-- results:begin (python -m benchmarks.report) -->", "<!-- results:end -->"
 RESULTS = Path("benchmarks/results")
+#: the figure of every success file's curves, which the report draws from them beside its table
+OVERVIEW_PLOT = "success_overview.png"
 
 
 def _num(value: Any, digits: int = 3) -> str:
@@ -460,11 +462,17 @@ RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
 
 def build_section(results: Path = RESULTS) -> str:
     from benchmarks.claims import claims_table
+    from benchmarks.success_overview import overview_table
 
     parts = [BEGIN, ""]
     claims = claims_table(results)
     if claims:  # the digest first: each claim, its figures and a rule's verdict
         parts += ["#### The paper's four claims, as measured here", "", claims, ""]
+    overview = overview_table(results)
+    if overview:  # every task's methods side by side, before each file's own section
+        parts += ["#### Success across tasks (the paper's Table 2 and Figure 4)", "", overview, ""]
+        if (results / OVERVIEW_PLOT).is_file():
+            parts += [f"![Success across tasks]({(results / OVERVIEW_PLOT).as_posix()})", ""]
     files = sorted(results.glob("*.json"))
     for pattern, title, render in RENDERERS:
         for path in files:
@@ -501,6 +509,10 @@ def main(argv: list[str] | None = None) -> int:
     if BEGIN not in text or END not in text:
         print(f"{readme}: no results markers ({BEGIN} ... {END}); add them where the section goes")
         return 2
+    if not args.check:  # the figure is drawn from the same files; --check only reads
+        from benchmarks.success_overview import overview_figure
+
+        overview_figure(Path(args.results), Path(args.results) / OVERVIEW_PLOT)
     section = build_section(Path(args.results))
     new = text[: text.index(BEGIN)] + section + text[text.index(END) + len(END) :]
     if args.check:

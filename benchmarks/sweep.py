@@ -26,6 +26,7 @@ __all__ = [
     "headline_metric",
     "make_demos",
     "mean_and_spread",
+    "plot_success_curves",
     "read_history",
     "rescore",
     "run_budget",
@@ -232,6 +233,51 @@ def convergence_steps(block: dict[str, Any]) -> list[tuple[int, bool]]:
     else:
         steps = [(s, False) for s in block.get("steps_to_90pct_of_best") or []]
     return [(s, rising) for s, rising in steps if s]
+
+
+#: the success curves' colour of each method (matplotlib's default cycle)
+METHOD_COLORS = {"l1flow": "C0", "flow": "C1", "ddpm": "C2", "regression": "C3"}
+
+
+def plot_success_curves(results: dict[str, dict[str, Any]], path: Path, columns: int = 3) -> None:
+    """Success against training step, one panel per task (the paper's Figure 4 style): each method's
+    mean over seeds with its min-max band, from a success file's ``tasks`` blocks; ``columns``
+    panels a row."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    tasks = list(results)
+    ncols = min(columns, len(tasks))
+    nrows = -(-len(tasks) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.5 * ncols, 3.6 * nrows), squeeze=False)
+    for ax, task in zip(axes.flat, tasks):
+        for method, block in results[task].items():
+            curves = [c for c in block["curves"] if c]
+            if not curves:
+                continue
+            steps = sorted({s for c in curves for s, _ in c})
+            values = [[v for c in curves if (v := dict(c).get(s)) is not None] for s in steps]
+            mean = [sum(vs) / len(vs) for vs in values]
+            lo, hi = [min(vs) for vs in values], [max(vs) for vs in values]
+            # one colour per method in every panel and figure
+            color = METHOD_COLORS.get(method, f"C{len(METHOD_COLORS) + sum(map(ord, method)) % 6}")
+            label = method + (f" (validation: {v})" if (v := block.get("validation_sampler")) else "")
+            ax.plot(steps, mean, "o-", ms=3, label=label, color=color)
+            ax.fill_between(steps, lo, hi, color=color, alpha=0.15)
+        ax.set_title(task, fontsize=9)
+        ax.set_xlabel("training step")
+        metric = next((b["metric"] for b in results[task].values()), "success_once")
+        ax.set_ylabel(f"{metric} (validation seeds)")
+        ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    for ax in list(axes.flat)[len(tasks) :]:
+        ax.set_visible(False)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def mean_and_spread(values: Sequence[float]) -> dict[str, float]:

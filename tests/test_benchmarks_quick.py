@@ -182,6 +182,43 @@ def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradic
     assert "DDIM-16 7.9× slower; DDPM-100 48× slower | outside 10-70× for DDIM-16 |" in speed
 
 
+def test_success_overview_puts_every_compared_task_in_one_table_and_figure(tmp_path):
+    from benchmarks.success_overview import overview_figure, overview_table
+
+    assert overview_table(tmp_path) is None and not overview_figure(tmp_path, tmp_path / "o.png")
+
+    def method(rates, metric="success_once", score=None):
+        per_seed = [{"success_once": r, "episodes": 50} for r in rates]
+        block = {
+            "metric": metric,
+            "success_once": {"mean": sum(rates) / len(rates), "n": len(rates)},
+            "per_seed": per_seed,
+            "curves": [[[500, r / 2], [1000, r]] for r in rates],
+        }
+        if score is not None:
+            block[metric] = {"mean": score, "n": len(rates)}
+        return block
+
+    def save(name, tasks, quick=False, demos=100):
+        args = {"demos": demos, "steps": 2500}
+        (tmp_path / name).write_text(json.dumps({"quick": quick, "args": args, "tasks": tasks}))
+
+    save("success_a.json", {"cube": {"l1flow": method([0.6, 0.6]), "ddpm": method([0.8, 0.8])}})
+    save(
+        "success_b.json", {"t": {"l1flow": method([0.7], "score", 0.95), "flow": method([0.2], "score", 0.9)}}
+    )
+    save("success_c.json", {"lone": {"l1flow": method([0.9])}})  # nothing to compare with
+    save("success_d_quick.json", {"q": {"l1flow": method([1.0]), "flow": method([1.0])}}, quick=True)
+    text = overview_table(tmp_path)
+    rows = [line for line in text.splitlines() if line.startswith("| ") and "`" in line]
+    assert [r.split(" | ")[0] for r in rows] == ["| cube", "| t"]  # lone and quick files left out
+    # pooled Wilson: 60/100 -> [0.50, 0.69], 80/100 -> [0.71, 0.87]; the higher mean in bold
+    assert "| 0.600 [0.50, 0.69] | – | **0.800 [0.71, 0.87]** | – | – |" in rows[0]
+    assert "100 demos, 2,500 steps, 2 seeds (`success_a.json`)" in rows[0]
+    assert "| **0.950 (score; success 0.70)** | 0.900 (score; success 0.20) |" in rows[1]
+    assert overview_figure(tmp_path, tmp_path / "o.png") and (tmp_path / "o.png").stat().st_size > 0
+
+
 @pytest.mark.slow
 @pytest.mark.maniskill
 def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
