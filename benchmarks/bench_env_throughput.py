@@ -11,16 +11,15 @@ with their history stacking (the env the evaluator uses). Start-up is not timed.
 blocks alternate (``--rounds``) and the medians are reported, so that load drifting on a shared
 machine hits all alike; this process's CPU time per step is reported too.
 
-    .venv/bin/python benchmarks/bench_env_throughput.py [--steps 600] [--gpu-envs 256 1024] [--obs-mode rgb]
+    .venv/bin/python -m benchmarks.bench_env_throughput [--steps 600] [--gpu-envs 256 1024] [--obs-mode rgb]
+
+``--quick`` runs every setting for a few steps and rounds, to check the script (not the speed).
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
-import json
-import os
-import platform
 import statistics
 import time
 from collections.abc import Callable
@@ -30,6 +29,7 @@ import torch
 from l1flow_rl.envs import make_env
 from l1flow_rl.envs.maniskill.env import make_gym_env
 
+from benchmarks.common import machine_info, save_results
 from l1flow_rl.config import TaskConfig, load_task_config
 
 #: a prepared env: step(i) runs pre-drawn action i (resetting at the time limit); close()
@@ -153,7 +153,7 @@ def measure(
     return row
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="maniskill_pushcube")
     parser.add_argument("--obs-mode", default=None, help="override the task's obs_mode (state | rgb)")
@@ -164,8 +164,13 @@ def main() -> int:
     parser.add_argument(
         "--threads", type=int, default=1, help="torch threads here (workers use 1); 0 keeps torch's default"
     )
-    parser.add_argument("--out", default=None, help="default: benchmarks/results/env_throughput_<obs>.json")
-    args = parser.parse_args()
+    parser.add_argument(
+        "--out", default=None, help="default: benchmarks/results/env_throughput_<obs>[_quick].json"
+    )
+    parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not speed")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.steps, args.rounds, args.warmup, args.gpu_envs = 4, 2, 2, args.gpu_envs[:1]
     if args.threads > 0:  # on a loaded 2-core machine, 2 OpenMP threads make small tensor ops ~20x slower
         torch.set_num_threads(args.threads)
     task = load_task_config(args.task, **({"obs_mode": args.obs_mode} if args.obs_mode else {}))
@@ -218,7 +223,6 @@ def main() -> int:
     else:
         notes.append("no CUDA device: GPU-parallel (physx_cuda) settings skipped")
         print(notes[-1])
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     result = {
         "task": task.name,
         "env_id": task.env_id,
@@ -227,14 +231,13 @@ def main() -> int:
         "max_episode_steps": task.max_episode_steps,
         "timed_steps_per_env": args.steps,
         "rounds": args.rounds,
-        "machine": f"{platform.machine()} {os.cpu_count()} cores, load average {load}"
-        + (f", {torch.cuda.get_device_name()}" if torch.cuda.is_available() else ", no GPU"),
+        "quick": args.quick,
+        "machine": machine_info("cuda" if torch.cuda.is_available() else "cpu"),
         "rows": rows,
         "notes": notes,
     }
-    out = Path(args.out or f"benchmarks/results/env_throughput_{task.obs_mode}.json")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=2))
+    out = Path(args.out or f"benchmarks/results/env_throughput_{task.obs_mode}{'_quick' * args.quick}.json")
+    save_results(out, result)
     print(f"wrote {out}")
     return 0
 

@@ -7,15 +7,13 @@ AdamW) at the same batch size, on a fixed batch and fed by the buffer with ``pre
 above 1 mean the sampler stays ahead of the model. The RGB sampler is compared with the state
 network's step, a lower bound on any image network's step.
 
-    .venv/bin/python benchmarks/bench_sampler.py [--out benchmarks/results/sampler.json]
+    .venv/bin/python -m benchmarks.bench_sampler [--quick] [--out benchmarks/results/sampler.json]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 import tempfile
 import time
@@ -24,6 +22,7 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
+from benchmarks.common import machine_info, save_results
 from l1flow_rl import L1FlowActor, L1FlowLoss
 from l1flow_rl.data import make_chunk_buffer
 
@@ -90,25 +89,30 @@ def train_chunks_per_second(step, feeds: dict, steps: int, device: torch.device)
     return {name: steps * BATCH / s for name, s in seconds.items()}
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="benchmarks/results/sampler.json")
+    parser.add_argument("--out", default=None, help="default: benchmarks/results/sampler[_quick].json")
     parser.add_argument("--state-batches", type=int, default=200)
     parser.add_argument("--rgb-batches", type=int, default=30)
     parser.add_argument("--train-steps", type=int, default=20)
     parser.add_argument(
         "--device", default="cuda" if torch.cuda.is_available() else "cpu", help="for training"
     )
-    args = parser.parse_args()
+    parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not speed")
+    args = parser.parse_args(argv)
+    # quick: a few episodes and batches through the same code (storage, prefetch, training step)
+    sizes = {"state": (10, 40), "rgb": (4, 40)} if args.quick else {"state": (100, 100), "rgb": (40, 80)}
+    if args.quick:
+        args.state_batches, args.rgb_batches, args.train_steps = 3, 2, 2
     device = torch.device(args.device)
     torch.manual_seed(0)
     with tempfile.TemporaryDirectory(prefix="l1flow-bench-sampler-") as tmp:
-        state = synthetic_steps(100, 100, rgb=False)  # about 100 PushCube demonstrations
+        state = synthetic_steps(*sizes["state"], rgb=False)  # about 100 PushCube demonstrations
         state_rb = make_chunk_buffer(state, TO, H, BATCH, seed=0, storage_dir=Path(tmp) / "state")
         state_prefetch = make_chunk_buffer(
             state, TO, H, BATCH, seed=0, storage_dir=Path(tmp) / "state", prefetch=2
         )
-        rgb = synthetic_steps(40, 80, rgb=True)  # 3200 frames, 157 MB
+        rgb = synthetic_steps(*sizes["rgb"], rgb=True)  # full: 3200 frames, 157 MB
         rgb_rb = make_chunk_buffer(rgb, TO, H, BATCH, seed=0, storage_dir=Path(tmp) / "rgb")
         del rgb
         results = {
@@ -125,7 +129,8 @@ def main() -> int:
         results["train_from_buffer_chunks_per_s"] = rates["buffer"]
     train = results["train_chunks_per_s"]
     figures = {
-        "machine": f"{platform.machine()} {os.cpu_count()} cores, torch threads {torch.get_num_threads()}",
+        "machine": machine_info(device),
+        "quick": args.quick,
         "train_device": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
         "batch_size": BATCH,
         "obs_horizon": TO,
@@ -135,10 +140,9 @@ def main() -> int:
         "rgb128_sampler_over_train": round(results["rgb128_chunks_per_s"] / train, 2),
         "train_from_buffer_over_fixed_batch": round(results["train_from_buffer_chunks_per_s"] / train, 3),
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(figures, indent=2))
+    out = save_results(args.out or f"benchmarks/results/sampler{'_quick' * args.quick}.json", figures)
     print(json.dumps(figures, indent=2))
+    print(f"saved {out}")
     return 0
 
 

@@ -346,3 +346,63 @@ def test_flow_q_pooled_rates_add_episode_counts_and_take_the_test_seed_from_over
     assert gains["gain_offline_over_best_continued_bc"] == pytest.approx(0.24)
     assert gains["gain_offline_over_best_bc"] == pytest.approx(0.16)
     assert gains["gain_over_best_continued_bc"] == pytest.approx(0.12)
+
+
+def test_sampler_quick_mode_measures_sampling_against_the_training_step(tmp_path):
+    from benchmarks import bench_sampler
+
+    out = tmp_path / "sampler.json"
+    assert bench_sampler.main(["--quick", "--out", str(out), "--device", "cpu"]) == 0
+    figures = json.loads(out.read_text())
+    assert figures["quick"] is True and figures["machine"]["cores"] >= 1
+    assert (figures["batch_size"], figures["obs_horizon"], figures["pred_horizon"]) == (256, 2, 16)
+    rates = [
+        "state_chunks_per_s",
+        "rgb128_chunks_per_s",
+        "train_chunks_per_s",
+        "train_from_buffer_chunks_per_s",
+    ]
+    assert all(figures[k] > 0 for k in rates)
+    # the ratios the README reads are the rates' own quotients, to their rounding
+    ratio = figures["state_chunks_per_s"] / figures["train_chunks_per_s"]
+    assert figures["state_sampler_over_train"] == pytest.approx(ratio, rel=0.01, abs=0.01)
+
+
+@pytest.mark.slow  # ~70 s: worker processes start for each of its settings
+@pytest.mark.maniskill
+def test_env_throughput_quick_mode_times_adapters_against_raw_maniskill(tmp_path):
+    pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
+    from benchmarks import bench_env_throughput
+
+    out = tmp_path / "env.json"
+    assert bench_env_throughput.main(["--quick", "--out", str(out)]) == 0
+    figures = json.loads(out.read_text())
+    assert figures["quick"] is True and figures["task"] == "maniskill_pushcube"
+    assert (figures["timed_steps_per_env"], figures["rounds"]) == (4, 2)
+    settings = {r["setting"]: r for r in figures["rows"]}
+    assert {"cpu_1env", "cpu_2proc"} <= set(settings)
+    assert set(settings["cpu_2proc"]["adapters"]) == {"async", "parallel"}
+    for row in figures["rows"]:
+        assert row["raw_steps_per_s"] > 0
+        for a in row["adapters"].values():
+            assert a["steps_per_s"] > 0
+            assert a["over_raw"] == pytest.approx(a["steps_per_s"] / row["raw_steps_per_s"], rel=0.01)
+
+
+@pytest.mark.maniskill
+def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
+    pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
+    from benchmarks import bench_main_job
+
+    out = tmp_path / "main_job.json"
+    assert bench_main_job.main(["--quick", "--out", str(out), "--workdir", str(tmp_path / "work")]) == 0
+    figures = json.loads(out.read_text())
+    assert figures["quick"] is True and figures["steps"] == 4 and figures["eval_episodes"] == 2
+    assert 0.0 <= figures["success_once"] <= 1.0 and figures["wall_seconds"] > 0
+    assert figures["wall_over_budget"] == pytest.approx(figures["wall_seconds"] / 900, abs=1e-3)
+    assert figures["meets_targets"] is False  # 2 episodes can never meet the 50-episode target
+    # --reuse reads the finished run back instead of training again
+    again = tmp_path / "again.json"
+    argv = ["--quick", "--reuse", "--out", str(again), "--workdir", str(tmp_path / "work")]
+    assert bench_main_job.main(argv) == 0
+    assert json.loads(again.read_text())["success_once"] == figures["success_once"]
