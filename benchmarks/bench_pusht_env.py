@@ -3,9 +3,11 @@
 Steps per second for raw ``gym.make("gym_pusht/PushT-v0")`` (the baseline), the adapter in process
 (``PushTEnv``, 1 env), ``make_env`` with ``backend=serial`` (2 envs in process) and with worker
 processes (``backend=parallel``, 2 envs), for the keypoints and pixels_agent_pos observations.
-Prints and saves ``benchmarks/results/pusht_env.json``.
+Prints and saves ``benchmarks/results/pusht_env.json``. ``--quick`` steps each setting a few times to
+check the script end to end (its rates mean nothing) and saves ``pusht_env_quick.json`` unless
+``--out`` says otherwise.
 
-    python benchmarks/bench_pusht_env.py --steps 600
+    python benchmarks/bench_pusht_env.py --steps 600 [--quick] [--out PATH]
 """
 
 from __future__ import annotations
@@ -18,6 +20,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
+DEFAULT_OUT = Path(__file__).parent / "results" / "pusht_env.json"
+#: where --quick saves without --out: beside the real file, never over it
+QUICK_OUT = DEFAULT_OUT.with_name("pusht_env_quick.json")
+#: --quick: steps per setting (2 per env for the 2-env settings) and warm-up steps of the 2-env envs
+QUICK_STEPS, QUICK_WARMUP = 4, 2
+WARMUP = 20
 
 
 def raw_rate(obs_type: str, steps: int) -> float:
@@ -50,11 +59,16 @@ def torchrl_rate(env, steps: int) -> float:
     return (steps // n) * n / (time.perf_counter() - start)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=600)
-    parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "pusht_env.json"))
-    args = parser.parse_args()
+    parser.add_argument("--out", default=None, help=f"default: {DEFAULT_OUT} ({QUICK_OUT.name} with --quick)")
+    parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not speed")
+    args = parser.parse_args(argv)
+    warmup = WARMUP
+    if args.quick:
+        args.steps, warmup = QUICK_STEPS, QUICK_WARMUP
+    out = Path(args.out or (QUICK_OUT if args.quick else DEFAULT_OUT))
     torch.set_num_threads(1)
     os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
     from l1flow_rl.envs import make_env
@@ -62,22 +76,29 @@ def main() -> None:
 
     from l1flow_rl.config import load_task_config
 
-    result = {"steps": args.steps, "loadavg_before": os.getloadavg(), "cpu_count": os.cpu_count()}
+    result = {
+        "quick": args.quick,
+        "steps": args.steps,
+        "loadavg_before": os.getloadavg(),
+        "cpu_count": os.cpu_count(),
+    }
     for task, obs_type in (("pusht", "state"), ("pusht_image", "pixels_agent_pos")):
         rows = {"raw_gym_pusht": raw_rate(obs_type, args.steps)}
         rows["adapter_1env"] = torchrl_rate(PushTEnv(load_task_config(task)), args.steps)
         for backend in ("serial", "parallel"):
             env = make_env(task, num_envs=2, backend=backend)
-            torchrl_rate(env, 20)  # workers started and warm
+            torchrl_rate(env, warmup)  # workers started and warm
             rows[f"make_env_2envs_{backend}"] = torchrl_rate(env, args.steps)
             env.close()
         base = rows["raw_gym_pusht"]
         result[task] = {"steps_per_s": rows, "ratio_to_raw": {k: v / base for k, v in rows.items()}}
         print(task, json.dumps(result[task], indent=1), flush=True)
     result["loadavg_after"] = os.getloadavg()
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=1))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1))
+    print(f"wrote {out}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

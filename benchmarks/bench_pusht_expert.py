@@ -1,8 +1,9 @@
 """The PushT planner over many seeds: success (coverage > 0.95), Diffusion Policy's score, steps and
 seconds per episode, and the share of episodes that went around the block on each side. Prints and
-saves ``benchmarks/results/pusht_expert.json``.
+saves ``benchmarks/results/pusht_expert.json``. ``--quick`` runs a couple of seeds in this process to
+check the script end to end and saves ``pusht_expert_quick.json`` unless ``--out`` says otherwise.
 
-    python benchmarks/bench_pusht_expert.py --seeds 100 --workers 2
+    python benchmarks/bench_pusht_expert.py --seeds 100 --workers 2 [--quick] [--out PATH]
 """
 
 from __future__ import annotations
@@ -15,14 +16,24 @@ from pathlib import Path
 
 import numpy as np
 
+DEFAULT_OUT = Path(__file__).parent / "results" / "pusht_expert.json"
+#: where --quick saves without --out: beside the real file, never over it
+QUICK_OUT = DEFAULT_OUT.with_name("pusht_expert_quick.json")
+#: --quick: seeds, run in this process (a worker pool only adds start-up time)
+QUICK_SEEDS, QUICK_WORKERS = 2, 1
 
-def main() -> None:
+
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=100)
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "pusht_expert.json"))
-    args = parser.parse_args()
+    parser.add_argument("--out", default=None, help=f"default: {DEFAULT_OUT} ({QUICK_OUT.name} with --quick)")
+    parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not speed")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.seeds, args.workers = QUICK_SEEDS, QUICK_WORKERS
+    out = Path(args.out or (QUICK_OUT if args.quick else DEFAULT_OUT))
     from l1flow_rl.experts.pusht.demos import run_episodes
 
     start, load_before = time.perf_counter(), os.getloadavg()
@@ -48,6 +59,7 @@ def main() -> None:
     ran = [r for r in rows if "steps" in r]
     sides = [r["side"] for r in ran]
     result = {
+        "quick": args.quick,
         "seeds": len(rows),
         "first_seed": args.first_seed,
         "success": float(np.mean([r["success"] for r in rows])),
@@ -69,10 +81,12 @@ def main() -> None:
         "cpu_count": os.cpu_count(),
         "per_seed": rows,
     }
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(result, indent=1))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1))
     print(json.dumps({k: v for k, v in result.items() if k != "per_seed"}, indent=1))
+    print(f"wrote {out}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

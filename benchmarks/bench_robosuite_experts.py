@@ -1,9 +1,12 @@
 """Scripted robosuite experts: success rate over many seeds and seconds per episode, per task.
 
 Each episode runs in this process on one env without cameras (what ``l1flow-rl demos`` runs in each
-worker), from the scene of its seed (0, 1, ...), up to the task's ``max_episode_steps``.
+worker), from the scene of its seed (0, 1, ...), up to the task's ``max_episode_steps``. ``--quick``
+runs one seed per task to check the script end to end and saves ``robosuite_experts_quick.json``
+unless ``--out`` says otherwise.
 
     .venv/bin/python -m benchmarks.bench_robosuite_experts [--seeds 100] [--tasks robosuite_lift ...]
+    .venv/bin/python -m benchmarks.bench_robosuite_experts --quick [--out PATH]
 """
 
 from __future__ import annotations
@@ -16,6 +19,12 @@ import torch
 
 from benchmarks.common import format_table, machine_info, save_results
 from l1flow_rl.config import load_task_config
+
+DEFAULT_OUT = "benchmarks/results/robosuite_experts.json"
+#: where --quick saves without --out: beside the real file, never over it
+QUICK_OUT = "benchmarks/results/robosuite_experts_quick.json"
+#: --quick: seeds per task (every task still runs: each has its own expert)
+QUICK_SEEDS = 1
 
 
 def run_task(name: str, seeds: int) -> dict:
@@ -49,21 +58,23 @@ def run_task(name: str, seeds: int) -> dict:
     return row
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=100)
     parser.add_argument("--tasks", nargs="*", default=["robosuite_lift", "robosuite_stack", "robosuite_can"])
-    parser.add_argument("--out", default="benchmarks/results/robosuite_experts.json")
-    args = parser.parse_args()
+    parser.add_argument("--out", default=None, help=f"default: {DEFAULT_OUT} ({QUICK_OUT} with --quick)")
+    parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not speed")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.seeds = QUICK_SEEDS
     torch.set_num_threads(1)
     machine_start = machine_info()
     rows = [run_task(name, args.seeds) for name in args.tasks]
     print(
         format_table(rows, ["task", "seeds", "success_rate", "seconds_per_episode", "steps_per_success_mean"])
     )
-    out = save_results(
-        args.out, {"machine_at_start": machine_start, "machine_at_end": machine_info(), "rows": rows}
-    )
+    figures = {"quick": args.quick, "machine_at_start": machine_start, "machine_at_end": machine_info()}
+    out = save_results(args.out or (QUICK_OUT if args.quick else DEFAULT_OUT), {**figures, "rows": rows})
     print(f"wrote {out}")
     return 0
 

@@ -8,9 +8,12 @@ Settings, each against its own raw baseline measured in this run:
 Every side steps the same pre-drawn absolute OSC_POSE targets (the home pose plus noise) and
 resets at the time limit. The adapter's step includes what it adds on purpose: ``forward()`` and
 the observation recomputed at the new state. Raw and adapter blocks alternate (``--rounds``) and
-medians are reported, so that load drifting on a shared machine hits all alike.
+medians are reported, so that load drifting on a shared machine hits all alike. ``--quick`` times
+a few steps in 2 rounds to check the script end to end, and saves
+``robosuite_throughput_<task>_quick.json`` unless ``--out`` says otherwise; it keeps ``--workers``
+(2 by default), since ``make_env`` runs a single env in process and only 2 or more reach the workers.
 
-    .venv/bin/python -m benchmarks.bench_robosuite_throughput [--task robosuite_lift] [--workers 2]
+    .venv/bin/python -m benchmarks.bench_robosuite_throughput [--task robosuite_lift] [--workers 2] [--quick]
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ from benchmarks.common import format_table, machine_info, save_results
 from l1flow_rl.config import TaskConfig, load_task_config
 
 Stepper = tuple[Callable[[int], None], Callable[[], None]]
+#: --quick: timed steps per env and side, rounds (2: the median over rounds), warm-up steps
+QUICK_STEPS, QUICK_ROUNDS, QUICK_WARMUP = 4, 2, 1
 
 
 def _raw_env(task: TaskConfig):
@@ -191,15 +196,20 @@ def measure(name: str, num_envs: int, sides: dict[str, Callable[[], Stepper]], a
     return row
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="robosuite_lift")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--steps", type=int, default=300, help="timed steps per env and side")
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--warmup", type=int, default=10)
-    parser.add_argument("--out", default=None)
-    args = parser.parse_args()
+    parser.add_argument(
+        "--out", default=None, help="default: benchmarks/results/robosuite_throughput_<task>[_quick].json"
+    )
+    parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not speed")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.steps, args.rounds, args.warmup = QUICK_STEPS, QUICK_ROUNDS, QUICK_WARMUP
     torch.set_num_threads(1)
     task = load_task_config(args.task)
     total = args.warmup + args.steps
@@ -229,6 +239,7 @@ def main() -> int:
     columns = sorted({k for r in rows for k in r}, key=lambda k: (k != "setting", k != "num_envs", k))
     print(format_table(rows, columns))
     result = {
+        "quick": args.quick,
         "task": task.name,
         "env_id": task.env_id,
         "obs_mode": task.obs_mode,
@@ -239,7 +250,8 @@ def main() -> int:
         "machine": machine_info(),
         "rows": rows,
     }
-    out = save_results(args.out or f"benchmarks/results/robosuite_throughput_{task.name}.json", result)
+    default = f"benchmarks/results/robosuite_throughput_{task.name}{'_quick' if args.quick else ''}.json"
+    out = save_results(args.out or default, result)
     print(f"wrote {out}")
     return 0
 

@@ -460,6 +460,12 @@ RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
 ]
 
 
+def _quick(path: Path) -> bool:
+    """A --quick run's file: it checked a script, it measured nothing, so no section lists it."""
+    data = json.loads(path.read_text())
+    return isinstance(data, dict) and bool(data.get("quick"))
+
+
 def build_section(results: Path = RESULTS) -> str:
     from benchmarks.claims import claims_table
     from benchmarks.success_overview import overview_table
@@ -491,7 +497,7 @@ def build_section(results: Path = RESULTS) -> str:
             if plot.is_file():  # the script's own figure beside its table
                 parts += [f"![{title}]({plot.as_posix()})", ""]
     rendered = {p.name for p in files for pat, _, _ in RENDERERS if re.fullmatch(pat, p.name)}
-    unrendered = [p.name for p in files if p.name not in rendered]
+    unrendered = [p.name for p in files if p.name not in rendered and not _quick(p)]
     if unrendered:
         parts += ["Other saved results: " + ", ".join(f"`{n}`" for n in unrendered) + ".", ""]
     parts.append(END)

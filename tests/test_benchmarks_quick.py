@@ -406,3 +406,13 @@ def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
     argv = ["--quick", "--reuse", "--out", str(again), "--workdir", str(tmp_path / "work")]
     assert bench_main_job.main(argv) == 0
     assert json.loads(again.read_text())["success_once"] == figures["success_once"]
+
+
+def test_report_lists_unrendered_results_but_never_a_quick_run(tmp_path):
+    from benchmarks.report import build_section
+
+    (tmp_path / "something_new.json").write_text(json.dumps({"quick": False, "x": 1}))
+    (tmp_path / "pusht_expert_quick.json").write_text(json.dumps({"quick": True, "seeds": 2}))
+    section = build_section(tmp_path)
+    assert "Other saved results: `something_new.json`." in section
+    assert "pusht_expert_quick" not in section
