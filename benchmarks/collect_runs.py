@@ -45,6 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--name", required=True, help="results/<name>.json")
     parser.add_argument("--note", default="", help="how the runs were made (load, budget)")
+    parser.add_argument(
+        "--results", type=Path, default=Path("benchmarks/results"), help="where <name>.json goes"
+    )
     parser.add_argument("runs", nargs="+", type=Path)
     args = parser.parse_args(argv)
     missing = [
@@ -58,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         "note": args.note,
         "runs": [run_record(r) for r in args.runs],
     }
-    out = save_results(Path("benchmarks/results") / f"{args.name}.json", figures)
+    out = save_results(args.results / f"{args.name}.json", figures)
     print(json.dumps(figures, indent=2))
     print(f"saved {out}")
     return 0

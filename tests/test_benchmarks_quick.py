@@ -406,6 +406,19 @@ def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
     argv = ["--quick", "--reuse", "--out", str(again), "--workdir", str(tmp_path / "work")]
     assert bench_main_job.main(argv) == 0
     assert json.loads(again.read_text())["success_once"] == figures["success_once"]
+    # the same run recorded as a results file by collect_runs; an unfinished run is refused
+    from benchmarks import collect_runs
+    from benchmarks.report import render_training_runs
+
+    run_dir = tmp_path / "work" / "run"
+    assert collect_runs.main(["--name", "t", "--results", str(tmp_path), str(tmp_path / "nothing")]) == 2
+    assert collect_runs.main(["--name", "t", "--results", str(tmp_path), str(run_dir)]) == 0
+    (record,) = json.loads((tmp_path / "t.json").read_text())["runs"]
+    assert (record["task"], record["policy"], record["steps"]) == ("maniskill_pushcube", "l1flow", 4)
+    assert record["success_once"] == figures["success_once"] and record["episodes"] == 2
+    assert "| maniskill_pushcube | l1flow | 2 | 4 |" in render_training_runs(
+        json.loads((tmp_path / "t.json").read_text())
+    )
 
 
 def test_report_lists_unrendered_results_but_never_a_quick_run(tmp_path):
