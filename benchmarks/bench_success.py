@@ -9,7 +9,9 @@ re-scored under ``eval.protocol=maniskill`` so the rows sit beside ManiSkill's p
 Saved: ``benchmarks/results/success_<tag>.json`` (per run, per method: final success_once with its
 95 % Wilson interval, mean and spread over seeds, the curve, steps to 90 % of the best) and
 ``success_<tag>.png`` (success against step, mean and min-max band over seeds). The sweep resumes:
-finished runs are read back, interrupted ones continue from their last checkpoint.
+finished runs are read back, interrupted ones continue from their last checkpoint. Several
+invocations may split one grid (disjoint policies or seeds, one root); ``--collect-only`` then writes
+the whole grid's file from their runs, training nothing.
 
 Each row also carries the protocol's headline metric (PushT under ``eval.protocol=diffusion_policy``:
 Diffusion Policy's score) and each run's budget (steps, wall and CPU seconds from its summary.json).
@@ -95,6 +97,24 @@ def _train_side_by_side(grid: dict[str, dict[str, list[Run]]], args: argparse.Na
     train_side_by_side(runs, root / "data", args.jobs)
 
 
+def _missing(
+    grid: dict[str, dict[str, list[Run]]], plans: dict[str, dict[str, list[tuple[str, str, list[str]]]]]
+) -> list[str]:
+    """The grid's runs and re-scorings that have no eval.json yet."""
+    missing = []
+    for task, by_policy in grid.items():
+        for policy, runs in by_policy.items():
+            for r in runs:
+                if not r.done:
+                    missing.append(f"{r.name} (training)")
+                missing += [
+                    f"{r.name} (re-scoring {name})"
+                    for _, name, _ in plans[task][policy]
+                    if not (r.run_dir / f"rescore_{name}" / "eval.json").is_file()
+                ]
+    return missing
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=["maniskill_pushcube"])
@@ -123,6 +143,13 @@ def main(argv: list[str] | None = None) -> int:
         "cores poorly, so 2-3 jobs on 2 cores finish a grid sooner; each run's CPU time is recorded)",
     )
     parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not the claim")
+    parser.add_argument(
+        "--collect-only",
+        action="store_true",
+        help="train and re-score nothing: write the results of runs finished by earlier invocations "
+        "(several invocations splitting one grid, or records restored by benchmarks.archive); "
+        "exit 2 listing every run or re-scoring still missing",
+    )
     parser.add_argument("extra", nargs="*", help="hydra overrides applied to every run")
     args = parser.parse_args(argv)
     if args.quick:
@@ -153,9 +180,14 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 for seed in args.seeds
             ]
+    plans = {task: {p: _rescore_plan(p, args) for p in by_policy} for task, by_policy in grid.items()}
+    if args.collect_only:
+        missing = _missing(grid, plans)
+        if missing:
+            print("--collect-only: not finished:\n  " + "\n  ".join(missing), file=sys.stderr)
+            return 2
     if args.jobs > 1:
         _train_side_by_side(grid, args, root)
-    plans = {task: {p: _rescore_plan(p, args) for p in by_policy} for task, by_policy in grid.items()}
     if args.jobs > 1:  # re-scorings side by side too; the loop below then reads them back
         rescore_side_by_side(
             [

@@ -261,6 +261,36 @@ def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
     assert (tmp_path / "success_pushcube_quick.png").stat().st_size > 5_000
     # a second call reads the finished runs back instead of training again
     assert bench_success.main(argv) == 0
+    # --collect-only writes the same grid from those runs, and refuses a grid with a run missing
+    collected = json.loads((tmp_path / "success_pushcube_quick.json").read_text())["tasks"]
+    assert bench_success.main([*argv, "--collect-only"]) == 0
+    again = json.loads((tmp_path / "success_pushcube_quick.json").read_text())["tasks"]
+    assert (
+        again["maniskill_pushcube"]["ddpm"]["per_seed"] == collected["maniskill_pushcube"]["ddpm"]["per_seed"]
+    )
+    assert bench_success.main([*argv[:5], "1", *argv[5:], "--collect-only"]) == 2  # seed 1 never ran
+
+
+def test_success_collect_only_lists_what_is_missing_and_trains_nothing(tmp_path, capsys):
+    from benchmarks import bench_success
+
+    argv = [
+        "--quick",
+        "--policies",
+        "ddpm",
+        "l1flow",
+        "--seeds",
+        "0",
+        "--root",
+        str(tmp_path),
+        "--collect-only",
+    ]
+    assert bench_success.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "maniskill_pushcube/ddpm/seed0 (training)" in err
+    assert "maniskill_pushcube/ddpm/seed0 (re-scoring ddim16)" in err
+    assert "maniskill_pushcube/l1flow/seed0 (training)" in err
+    assert not list(tmp_path.iterdir())  # no demonstrations, no run folder
 
 
 @pytest.mark.slow
