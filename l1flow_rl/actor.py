@@ -116,6 +116,7 @@ class L1FlowActor(TensorDictModule):
         timestep_embed_dim: int = 128,
         kernel_size: int = 5,
         n_groups: int = 8,
+        timestep_scale: float = 1.0,
         sampler: ChunkSampler | None = None,
         in_keys: Sequence[NestedKey] = ("observation",),
         out_keys: Sequence[NestedKey] = ("action_chunk",),
@@ -129,6 +130,7 @@ class L1FlowActor(TensorDictModule):
             timestep_embed_dim=timestep_embed_dim if sampler.uses_timestep else 0,
             kernel_size=kernel_size,
             n_groups=n_groups,
+            timestep_scale=timestep_scale,
         )
         policy = ChunkPolicy(
             net,

@@ -101,6 +101,15 @@ def test_config_mismatch_lists_every_difference():
     assert "task.obs_mode" not in msg
 
 
+def test_timestep_scale_is_part_of_a_checkpoints_identity_and_defaults_to_raw_time():
+    before = {"policy": {"down_dims": [64, 128, 256]}}  # a checkpoint from before the field
+    check_compatible(before, {"policy": {"down_dims": [64, 128, 256], "timestep_scale": 1.0}})
+    with pytest.raises(
+        CheckpointMismatchError, match=r"policy\.timestep_scale: checkpoint has 1\.0, config asks for 1000"
+    ):
+        check_compatible(before, {"policy": {"down_dims": [64, 128, 256], "timestep_scale": 1000}})
+
+
 def test_loading_weights_into_another_network_says_what_differs():
     small = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
     other = L1FlowActor.for_state(obs_dim=7, action_dim=2, down_dims=(16, 32))

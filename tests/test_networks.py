@@ -70,6 +70,25 @@ def test_sinusoidal_embedding_of_raw_flow_time():
         SinusoidalEmbedding(7)
 
 
+def test_timestep_scale_multiplies_the_time_before_its_embedding():
+    torch.manual_seed(0)
+    raw = ConditionalUnet1D(2, global_cond_dim=3, down_dims=(16, 32), timestep_embed_dim=16)
+    scaled = ConditionalUnet1D(
+        2, global_cond_dim=3, down_dims=(16, 32), timestep_embed_dim=16, timestep_scale=1000
+    )
+    scaled.load_state_dict(raw.state_dict())  # the scale is no weight: the same parameters fit both
+    x, cond, t = torch.randn(4, 16, 2), torch.randn(4, 3), torch.tensor([0.0, 0.25, 0.5, 0.999])
+    torch.testing.assert_close(scaled(x, t, cond), raw(x, t * 1000, cond))
+    # raw flow time: the embedding's fastest feature moves by under one radian over [0, 1], so
+    # t = 0.25 and 0.5 embed nearly alike; scaled, they are far apart
+    emb = SinusoidalEmbedding(16)
+    near = (emb(torch.tensor([0.25])) - emb(torch.tensor([0.5]))).norm()
+    far = (emb(torch.tensor([250.0])) - emb(torch.tensor([500.0]))).norm()
+    assert near < 0.5 < far
+    with pytest.raises(ValueError, match="timestep_scale must be positive"):
+        ConditionalUnet1D(2, global_cond_dim=3, down_dims=(16, 32), timestep_scale=0)
+
+
 def test_unet_errors_name_the_expected_shapes():
     net = ConditionalUnet1D(2, global_cond_dim=6, down_dims=(16, 32), timestep_embed_dim=16)
     with pytest.raises(ValueError, match=r"UNet input must be \[B, H, 2\], got \(3, 8, 3\)"):

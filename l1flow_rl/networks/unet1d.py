@@ -68,6 +68,10 @@ class ConditionalUnet1D(nn.Module):
         timestep_embed_dim: size of the sinusoidal timestep embedding; 0 builds a timestep-free
             network (plain regression), whose ``forward`` must get ``t=None``.
         kernel_size, n_groups: conv kernel and GroupNorm groups (5 and 8 in Diffusion Policy).
+        timestep_scale: t is multiplied by it before the sinusoidal embedding. 1 (default) feeds the
+            raw flow time in [0, 1], as the official L1 Flow code does; there the embedding's fastest
+            feature turns by one radian over the whole path, so the network barely resolves t. 1000
+            spreads [0, 1] over the range Diffusion Policy's integer steps use.
 
     The chunk length must be divisible by ``2 ** (len(down_dims) - 1)``.
     """
@@ -80,8 +84,12 @@ class ConditionalUnet1D(nn.Module):
         timestep_embed_dim: int = 128,
         kernel_size: int = 5,
         n_groups: int = 8,
+        timestep_scale: float = 1.0,
     ) -> None:
         super().__init__()
+        if not timestep_scale > 0:
+            raise ValueError(f"timestep_scale must be positive, got {timestep_scale}")
+        self.timestep_scale = float(timestep_scale)
         down_dims = tuple(int(d) for d in down_dims)
         if not down_dims:
             raise ValueError("down_dims must name at least one level")
@@ -135,7 +143,8 @@ class ConditionalUnet1D(nn.Module):
         if self.time_mlp is not None:
             if t is None:
                 raise ValueError("this UNet was built with a timestep embedding; pass t")
-            feats.append(self.time_mlp(t.expand(x.shape[0]) if t.dim() == 0 else t))
+            t = t.expand(x.shape[0]) if t.dim() == 0 else t
+            feats.append(self.time_mlp(t * self.timestep_scale if self.timestep_scale != 1.0 else t))
         elif t is not None:
             raise ValueError(
                 "this UNet was built without a timestep embedding (timestep_embed_dim=0); pass t=None"

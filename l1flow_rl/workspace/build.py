@@ -54,6 +54,7 @@ def build_actor(
         timestep_embed_dim=p["timestep_embed_dim"],
         kernel_size=p["kernel_size"],
         n_groups=p["n_groups"],
+        timestep_scale=p.get("timestep_scale", 1.0),  # checkpoints from before the field: raw t
         sampler=make_sampler(p["sampler"], **p.get("sampler_kwargs", {})),
     )
 

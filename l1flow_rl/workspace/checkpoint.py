@@ -48,7 +48,10 @@ _IDENTITY_FIELDS = (
     "policy.timestep_embed_dim",
     "policy.kernel_size",
     "policy.n_groups",
+    "policy.timestep_scale",
 )
+#: identity fields added after checkpoints were made: what a checkpoint without one was built with
+_IDENTITY_DEFAULTS = {"policy.timestep_scale": 1.0}
 
 
 #: Config fields a resumed run may set differently from the run it continues (dotted, ``*`` matches
@@ -140,10 +143,15 @@ def check_compatible(
 ) -> None:
     """Raise :class:`CheckpointMismatchError` listing every identity field that differs."""
     current = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+
+    def value(c: Mapping[str, Any], f: str) -> Any:
+        found = _select(c, f)
+        return _IDENTITY_DEFAULTS.get(f) if found is None else found
+
     diffs = [
-        f"{f}: checkpoint has {_select(saved_cfg, f)!r}, config asks for {_select(current, f)!r}"
+        f"{f}: checkpoint has {value(saved_cfg, f)!r}, config asks for {value(current, f)!r}"
         for f in _IDENTITY_FIELDS
-        if _select(saved_cfg, f) != _select(current, f)
+        if value(saved_cfg, f) != value(current, f)
     ]
     if diffs:
         raise CheckpointMismatchError(
