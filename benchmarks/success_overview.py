@@ -64,7 +64,7 @@ def overview_table(results: Path) -> str | None:
     for name, task, args, block in settings:
         seeds = block["l1flow"]["success_once"]["n"]
         setting = f"{args.get('demos', '?')} demos, {args.get('steps', '?'):,} steps, {seeds} seed"
-        setting += "s" * (seeds != 1) + f" (`{name}`)"
+        setting += "s" * (seeds != 1) + "".join(f", `{o}`" for o in args.get("extra") or []) + f" (`{name}`)"
         means = {k: b[b.get("metric", "success_once")]["mean"] for k, b in block.items() if k in COLUMNS}
         best = max(means.values())
         cells = [f"**{_cell(block[k])}**" if means.get(k) == best else _cell(block.get(k)) for k in COLUMNS]

@@ -157,6 +157,8 @@ def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradic
     }
     (tmp_path / "success_x.json").write_text(json.dumps({"quick": False, "tasks": tasks}))
     (tmp_path / "success_y_quick.json").write_text(json.dumps({"quick": True, "tasks": tasks}))
+    ablation = {"quick": False, "args": {"extra": ["policy.timestep_scale=1000"]}, "tasks": tasks}
+    (tmp_path / "success_z_ablation.json").write_text(json.dumps(ablation))
     latency = {
         "machine": {"device": "cpu"},
         "inference": {
@@ -170,6 +172,7 @@ def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradic
     text = claims_table(tmp_path)
     rows = {line.split(" | ")[1]: line for line in text.splitlines() if line.startswith("| ") and "(" in line}
     assert text.count("`success_x.json`") == 6 and "success_y_quick" not in text  # quick files never count
+    assert "success_z_ablation" not in text  # nor a sweep that changed the policy
     a, b, _ = (line for line in text.splitlines() if "2 NFE match" in line)
     assert a.endswith("| below DDPM-100 |") and b.endswith("| holds |")
     conv_a, conv_b, conv_c = (line for line in text.splitlines() if "converges faster" in line)
@@ -209,9 +212,16 @@ def test_success_overview_puts_every_compared_task_in_one_table_and_figure(tmp_p
     )
     save("success_c.json", {"lone": {"l1flow": method([0.9])}})  # nothing to compare with
     save("success_d_quick.json", {"q": {"l1flow": method([1.0]), "flow": method([1.0])}}, quick=True)
+    e = {"quick": False, "args": {"demos": 9, "steps": 5, "extra": ["policy.timestep_scale=1000"]}}
+    (tmp_path / "success_e.json").write_text(
+        json.dumps({**e, "tasks": {"z": {"l1flow": method([0.5]), "flow": method([0.5])}}})
+    )
     text = overview_table(tmp_path)
     rows = [line for line in text.splitlines() if line.startswith("| ") and "`" in line]
-    assert [r.split(" | ")[0] for r in rows] == ["| cube", "| t"]  # lone and quick files left out
+    assert [r.split(" | ")[0] for r in rows] == ["| cube", "| t", "| z"]  # lone and quick files left out
+    assert (
+        "9 demos, 5 steps, 1 seed, `policy.timestep_scale=1000` (`success_e.json`)" in rows[2]
+    )  # overrides shown
     # pooled Wilson: 60/100 -> [0.50, 0.69], 80/100 -> [0.71, 0.87]; the higher mean in bold
     assert "| 0.600 [0.50, 0.69] | – | **0.800 [0.71, 0.87]** | – | – |" in rows[0]
     assert "100 demos, 2,500 steps, 2 seeds (`success_a.json`)" in rows[0]
