@@ -86,9 +86,12 @@ def overview_figure(results: Path, out: Path) -> bool:
     settings = _settings(results)
     if not settings:
         return False
+    # one panel per table row: two files of one task (a default sweep and an ablation) keep both
     panels = {
-        f"{task} ({args.get('demos', '?')} demos)": {k: b for k, b in block.items() if b.get("curves")}
-        for _, task, args, block in settings
+        f"{task} ({args.get('demos', '?')} demos, {Path(name).stem.removeprefix('success_')})": {
+            k: b for k, b in block.items() if b.get("curves")
+        }
+        for name, task, args, block in settings
     }
     plot_success_curves(panels, out)
     return True
