@@ -185,14 +185,10 @@ def render_success(d: dict) -> str:
 
 def _pooled_interval(per_seed: list[dict]) -> str:
     """Wilson's 95 % interval of the success rate over all seeds' test episodes together."""
-    from l1flow_rl.evaluation import wilson_interval
+    from benchmarks.claims import pooled_interval
 
-    counted = [(r["success_once"], r["episodes"]) for r in per_seed if r.get("episodes")]
-    n = sum(e for _, e in counted)
-    if not n:
-        return "–"
-    lo, hi = wilson_interval(round(sum(v * e for v, e in counted)), n)
-    return f"[{lo:.2f}, {hi:.2f}]"
+    ci = pooled_interval(per_seed)
+    return f"[{ci[0]:.2f}, {ci[1]:.2f}]" if ci else "–"
 
 
 def render_ablations(d: dict) -> str:
