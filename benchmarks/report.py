@@ -139,8 +139,13 @@ def render_success(d: dict) -> str:
             headline = "–" if metric == "success_once" else f"{metric} {_num(m['mean'])} ± {_num(m['std'])}"
             budget = [r for r in b.get("per_seed", []) if r.get("steps")]
             trained = ", ".join(sorted({str(r["steps"]) for r in budget})) or "–"
-            cpu = [r["cpu_seconds"] for r in budget if r.get("cpu_seconds")]
+            # A run resumed from a checkpoint older than the per-run totals counts only its last
+            # invocation (seconds_since_step > 0): its CPU seconds would understate the budget.
+            whole = [r for r in budget if not r.get("seconds_since_step")]
+            cpu = [r["cpu_seconds"] for r in whole if r.get("cpu_seconds")]
             cpu_mean = sum(cpu) / len(cpu) if cpu else None
+            if partial := len(budget) - len(whole):
+                notes.append(f"{task} {label}: CPU s leave out {partial} run(s) timed only from a resume")
             rows.append(
                 [task, label, headline, s["mean"], s["std"], _pooled_interval(b.get("per_seed", [])), s["n"]]
             )

@@ -291,11 +291,13 @@ def mean_and_spread(values: Sequence[float]) -> dict[str, float]:
 
 
 def run_budget(run: Run) -> dict[str, Any]:
-    """What a finished run cost, from its summary.json: steps, wall and CPU seconds (of its last
-    invocation when it was resumed)."""
+    """What a finished run cost, from its summary.json: steps, wall and CPU seconds summed over the
+    invocations that resumed it. ``seconds_since_step`` > 0: resumed from a checkpoint older than
+    those totals, so the seconds count from that step only (summaries written before the field
+    existed lack it and counted their last invocation only)."""
     path = run.run_dir / "summary.json"
     summary = json.loads(path.read_text()) if path.is_file() else {}
-    return {k: summary.get(k) for k in ("steps", "wall_seconds", "cpu_seconds")}
+    return {k: summary.get(k) for k in ("steps", "wall_seconds", "cpu_seconds", "seconds_since_step")}
 
 
 def headline_metric(result: dict[str, Any]) -> str:

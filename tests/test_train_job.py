@@ -93,7 +93,9 @@ def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(
     monkeypatch.setattr(Trainer, "train_step", crashing_step)
     with pytest.raises(RuntimeError, match="simulated crash"):
         main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY])
-    assert load_checkpoint(run_dir / "checkpoints")["step"] == 20  # the last good one, intact
+    crashed = load_checkpoint(run_dir / "checkpoints")
+    assert crashed["step"] == 20  # the last good one, intact
+    assert crashed["elapsed"]["since_step"] == 0 and crashed["elapsed"]["train"] > 0
     monkeypatch.setattr(Trainer, "train_step", real_step)
 
     with pytest.raises(FileExistsError, match="resume=true"):
@@ -116,6 +118,43 @@ def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(
     assert _tensors_equal(resumed["model"], straight["model"]) == []
     assert _tensors_equal(resumed["ema"], straight["ema"]) == []
     assert resumed["history"]["loss"] == straight["history"]["loss"]
+    # The run's cost counts the crashed invocation's seconds too (up to its last checkpoint).
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["seconds_since_step"] == 0
+    for phase in ("train", "cpu", "wall"):
+        assert summary[f"{phase}_seconds"] > round(crashed["elapsed"][phase], 1), phase
+
+
+def test_a_run_killed_in_its_test_episodes_resumes_without_repeating_its_final_validation(
+    tmp_path, data_dir, monkeypatch
+):
+    from l1flow_rl.workspace.evaluator import PeriodicEvaluator
+
+    run_dir = tmp_path / "run"
+    args = ["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY, "train.eval_every=20"]
+    real_call = PeriodicEvaluator.__call__
+
+    def killed_in_test(self, actor, step, video_dir=None, split="val"):
+        if split == "test":
+            raise KeyboardInterrupt("killed during the test episodes")
+        return real_call(self, actor, step, video_dir=video_dir, split=split)
+
+    monkeypatch.setattr(PeriodicEvaluator, "__call__", killed_in_test)
+    with pytest.raises(KeyboardInterrupt):
+        main(args)
+    monkeypatch.setattr(PeriodicEvaluator, "__call__", real_call)
+    latest = run_dir / "checkpoints" / "latest.pt"
+    state = torch.load(latest, weights_only=True)
+    assert [(e["step"], e["split"]) for e in state["evals"]] == [(20, "val"), (40, "val")]
+    # As a checkpoint written before the totals existed: the summary must say what its seconds cover.
+    del state["elapsed"]
+    torch.save(state, latest)
+
+    assert main([*args, "resume=true"]) == 0
+    evals = json.loads((run_dir / "history.json").read_text())["evals"]
+    assert [(e["step"], e["split"]) for e in evals] == [(20, "val"), (40, "val"), (40, "test")]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["seconds_since_step"] == 40 and summary["train_seconds"] == 0.0
 
 
 def test_eval_command_on_a_checkpoint(tmp_path, full_run):

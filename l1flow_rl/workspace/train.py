@@ -11,7 +11,6 @@ import functools
 import json
 import os
 import random
-import resource
 import time
 from pathlib import Path
 from typing import Any
@@ -41,6 +40,7 @@ from l1flow_rl.workspace.distributed import (
 from l1flow_rl.workspace.evaluator import PeriodicEvaluator
 from l1flow_rl.workspace.logging import make_logger
 from l1flow_rl.workspace.report import format_summary, save_history, save_plots
+from l1flow_rl.workspace.run_clock import RunClock
 from l1flow_rl.workspace.trainer import Trainer
 
 __all__ = ["resolve_device", "run_train"]
@@ -88,12 +88,6 @@ def _rank0_due(cfg: DictConfig, step: int) -> bool:
     return bool(step % t.log_every == 0 or step % t.checkpoint_every == 0 or step == t.steps or evaluates)
 
 
-def _cpu_seconds() -> float:
-    """User + system CPU time of this process and its finished children (demo and env workers)."""
-    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
-
-
 def run_train(cfg: DictConfig) -> int:
     """Train ``cfg.policy`` on ``cfg.task``'s demonstrations; rank 0 evaluates and reports.
 
@@ -127,9 +121,9 @@ def run_train(cfg: DictConfig) -> int:
     run_on_rank0(preflight, "checking the run directory and the evaluation protocol")
 
     # -- data --------------------------------------------------------------------------------
-    t_start = time.perf_counter()
+    clock = RunClock(resume_state)
     dataset = run_on_rank0(lambda: resolve_dataset(cfg), "making or finding the demonstrations")
-    demo_seconds = time.perf_counter() - t_start
+    clock.demos_done()
     pcfg = cfg.policy
 
     def setup() -> tuple[Any, ...]:
@@ -201,6 +195,7 @@ def run_train(cfg: DictConfig) -> int:
             history=history,
             evals=evals,
             best=best,
+            elapsed=clock.totals(),
             logger=logger.state_dict() if logger is not None and hasattr(logger, "state_dict") else None,
         )
         return state
@@ -209,6 +204,7 @@ def run_train(cfg: DictConfig) -> int:
     from tqdm import tqdm
 
     t_train = time.perf_counter()
+    clock.training_starts()
     first_step = trainer.step
     bar = tqdm(total=tcfg.steps, initial=first_step, disable=not is_main, desc="train", dynamic_ncols=True)
 
@@ -251,7 +247,7 @@ def run_train(cfg: DictConfig) -> int:
                 )
     finally:
         bar.close()
-    train_seconds = time.perf_counter() - t_train
+    clock.training_ends()
 
     # -- final evaluation and report ------------------------------------------------------
     def report() -> None:
@@ -261,11 +257,11 @@ def run_train(cfg: DictConfig) -> int:
             "policy": cfg.policy.name,
             "steps": trainer.step,
             "demos": cfg.demos.num,
-            "demo_seconds": round(demo_seconds, 1),
-            "train_seconds": round(train_seconds, 1),
         }
+        # A run resumed after its final validation (killed during the test episodes) has it already.
+        validated = any(e["step"] == trainer.step and e.get("split") == "val" for e in evals)
         if evaluator is not None:
-            if evals:  # validation ran during training: the final model competes on the same seeds
+            if evals and not validated:  # validation ran during training: the final model competes
                 val = evaluator(trainer.ema_actor, trainer.step, split="val")
                 evals.append(evaluator.history_row(val))
                 if val[evaluator.headline] > best:
@@ -290,8 +286,10 @@ def run_train(cfg: DictConfig) -> int:
                 eval_episodes=result["episodes"],
                 chunk_latency_ms_median=result.get("latency_ms_median"),
             )
-        summary["wall_seconds"] = round(time.perf_counter() - t_start, 1)
-        summary["cpu_seconds"] = round(_cpu_seconds(), 1)  # the budget when runs share the machine
+        # Seconds over every invocation of the run; CPU is the budget when runs share the machine.
+        totals = clock.totals()
+        summary.update({f"{k}_seconds": round(totals[k], 1) for k in ("demo", "train", "wall", "cpu")})
+        summary["seconds_since_step"] = totals["since_step"]  # 0: the figures cover the whole run
         save_plots(history, evals, run_dir)
         save_history(history, evals, run_dir)
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
