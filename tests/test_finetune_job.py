@@ -161,6 +161,13 @@ def test_resume_matches_an_uninterrupted_run(tmp_path, data_dir, bc_checkpoint, 
     assert _differing(resumed["buffers"], straight["buffers"]) == []  # the samplers' generators
     assert resumed["history"]["metrics"] == straight["history"]["metrics"]
     assert resumed["rounds"] == straight["rounds"]
+    # The run's cost counts the crashed invocation too, up to its last checkpoint; the offline phase
+    # ended before the crash, so the resumed invocation adds nothing to it.
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["seconds_since_step"] == 0
+    assert summary["offline_seconds"] == pytest.approx(saved["elapsed"]["offline"], abs=0.06)
+    for phase in ("online", "cpu", "wall"):
+        assert summary[f"{phase}_seconds"] > round(saved["elapsed"][phase], 1), phase
 
 
 def test_a_checkpoint_of_another_task_is_refused(tmp_path, data_dir, bc_checkpoint):

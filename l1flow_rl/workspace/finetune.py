@@ -22,7 +22,6 @@ from __future__ import annotations
 import json
 import random
 import shutil
-import time
 from pathlib import Path
 from typing import Any
 
@@ -144,6 +143,7 @@ def run_finetune(cfg: DictConfig) -> int:
     from l1flow_rl.workspace.flowq_trainer import FlowQTrainer, finetuned_policy_config
     from l1flow_rl.workspace.logging import make_logger
     from l1flow_rl.workspace.rl_data import RLBuffers
+    from l1flow_rl.workspace.run_clock import RunClock
 
     if not cfg.checkpoint:
         print("l1flow-rl finetune: pass checkpoint=PATH (the L1 Flow BC checkpoint to fine-tune)")
@@ -187,7 +187,7 @@ def run_finetune(cfg: DictConfig) -> int:
     evaluator = PeriodicEvaluator(cfg, device) if cfg.eval.episodes > 0 else None
 
     # -- data and model -----------------------------------------------------------------------
-    t_start = time.perf_counter()
+    clock = RunClock(resume_state.get("elapsed") if resume_state else None, phases=("offline", "online"))
     dataset = _dataset(cfg, bc_state)
     episodes = load_task_episodes(cfg, dataset)
     trainer = FlowQTrainer(bc_actor, cfg.finetune)
@@ -199,6 +199,7 @@ def run_finetune(cfg: DictConfig) -> int:
     best, logger_state = -1.0, None
     if resume_state is not None:
         trainer.load_state_dict(resume_state["trainer"])
+        clock.resumed_at(trainer.updates)
         if resume_state.get("online_buffer"):
             buffers.load_online(ckpt_dir / resume_state["online_buffer"])
         buffers.load_state_dict(resume_state["buffers"])
@@ -233,6 +234,7 @@ def run_finetune(cfg: DictConfig) -> int:
             "evals": evals,
             "rounds": rounds,
             "best": best,
+            "elapsed": clock.totals(),
             "logger": logger.state_dict() if hasattr(logger, "state_dict") else None,
         }
 
@@ -285,7 +287,7 @@ def run_finetune(cfg: DictConfig) -> int:
 
     ocfg = cfg.offline
     critic_only = ocfg.critic_pretrain + ocfg.critic_warmup  # offline updates before the actor's first
-    t_offline = time.perf_counter()
+    clock.start("offline")
     bar = tqdm(
         total=ocfg.steps, initial=progress["offline_updates"], desc="offline updates", dynamic_ncols=True
     )
@@ -317,11 +319,11 @@ def run_finetune(cfg: DictConfig) -> int:
         if progress["offline_updates"] % fcfg.checkpoint_every == 0 or done:
             save(dump_online=False)
     bar.close()
-    offline_seconds = time.perf_counter() - t_offline
+    clock.stop("offline")
 
     # -- online -------------------------------------------------------------------------------
     on = cfg.online
-    t_online = time.perf_counter()
+    clock.start("online")
     if progress["env_steps"] < on.steps:
         from l1flow_rl.workspace.collect import OnlineCollector, round_stats
 
@@ -357,7 +359,7 @@ def run_finetune(cfg: DictConfig) -> int:
                     since_checkpoint = 0
                     save(dump_online=True)
         bar.close()
-    online_seconds = time.perf_counter() - t_online
+    clock.stop("online")
 
     # -- final evaluation and report -----------------------------------------------------------
     summary: dict[str, Any] = {
@@ -367,8 +369,6 @@ def run_finetune(cfg: DictConfig) -> int:
         "offline_updates": progress["offline_updates"],
         "env_steps": progress["env_steps"],
         "updates": trainer.updates,
-        "offline_seconds": round(offline_seconds, 1),
-        "online_seconds": round(online_seconds, 1),
     }
     if evaluator is not None:
         result = evaluator(trainer.policy_actor, trainer.updates, video_dir=run_dir / "videos", split="test")
@@ -386,7 +386,7 @@ def run_finetune(cfg: DictConfig) -> int:
         if not (ckpt_dir / "best.pt").is_file():
             save_checkpoint(ckpt_dir / "best.pt", checkpoint_state(None))
     save(dump_online=False)  # the final state (history, evaluations); the buffer copy stays
-    summary["wall_seconds"] = round(time.perf_counter() - t_start, 1)
+    summary.update(clock.summary())  # offline/online/wall/cpu seconds over every invocation of the run
     (run_dir / "history.json").write_text(json.dumps({"history": history, "evals": evals, "rounds": rounds}))
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     _plot(history, evals, rounds, run_dir)

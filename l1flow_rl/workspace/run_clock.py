@@ -1,17 +1,17 @@
-"""What a training run has cost, summed over the invocations that resumed it.
+"""What a run has cost, summed over the invocations that resumed it.
 
 A run killed and resumed (``resume=true``) would otherwise report only its last invocation's
 seconds; benchmarks read these figures as the run's budget. The totals travel in every checkpoint
-under ``elapsed``; work done after the last checkpoint of a killed invocation is lost and not counted.
+(``RunClock.totals()``, saved under ``elapsed``); work done after the last checkpoint of a killed
+invocation is lost and not counted.
 """
 
 from __future__ import annotations
 
 import resource
 import time
+from collections.abc import Mapping, Sequence
 from typing import Any
-
-PHASES = ("demo", "train", "wall", "cpu")
 
 
 def process_cpu_seconds() -> float:
@@ -21,40 +21,50 @@ def process_cpu_seconds() -> float:
 
 
 class RunClock:
-    """Seconds spent making demonstrations, training, in all (wall) and on the CPU, across resumes.
+    """Seconds per named phase, in all (``wall``) and on the CPU (``cpu``), across resumes.
 
-    ``resume_state`` is the checkpoint being continued (None: a fresh run). A checkpoint written
-    before totals were recorded leaves the earlier invocations uncounted: ``since_step`` then names
-    the step from which the figures count (0: the whole run).
+    ``prior`` is the ``elapsed`` record of the checkpoint being continued (None: a fresh run, or a
+    checkpoint written before the totals existed; then call :meth:`resumed_at`, so that
+    ``since_step`` names the step from which the figures count; 0: the whole run).
+
+    >>> clock = RunClock(None, phases=("train",))
+    >>> clock.start("train"); clock.stop("train")
+    >>> sorted(clock.totals())
+    ['cpu', 'since_step', 'train', 'wall']
     """
 
-    def __init__(self, resume_state: dict[str, Any] | None) -> None:
+    def __init__(self, prior: Mapping[str, Any] | None, phases: Sequence[str]) -> None:
         self._start = time.perf_counter()
-        self._train_start: float | None = None
-        self._train_end: float | None = None
-        self._demo = 0.0
-        prior = (resume_state or {}).get("elapsed")
-        self.prior = {k: float(prior.get(k, 0.0)) for k in PHASES} if prior else dict.fromkeys(PHASES, 0.0)
-        if prior:
-            self.since_step = int(prior.get("since_step", 0))
-        else:  # fresh (0), or resumed from a checkpoint that predates the totals
-            self.since_step = int((resume_state or {}).get("step", 0))
+        self._keys = (*phases, "wall", "cpu")
+        self._own = dict.fromkeys(phases, 0.0)
+        self._open: dict[str, float] = {}
+        self._prior = {k: float((prior or {}).get(k, 0.0)) for k in self._keys}
+        self._has_prior = prior is not None
+        self.since_step = int(prior.get("since_step", 0)) if prior else 0
 
-    def demos_done(self) -> None:
-        self._demo = time.perf_counter() - self._start
+    def resumed_at(self, step: int) -> None:
+        """The run continues from ``step``; without earlier totals its figures count from there."""
+        if not self._has_prior:
+            self.since_step = int(step)
 
-    def training_starts(self) -> None:
-        self._train_start = time.perf_counter()
+    def start(self, phase: str) -> None:
+        self._open[phase] = time.perf_counter()
 
-    def training_ends(self) -> None:
-        self._train_end = time.perf_counter()
+    def stop(self, phase: str) -> None:
+        self._own[phase] += time.perf_counter() - self._open.pop(phase)
 
     def totals(self) -> dict[str, float]:
-        """The run's seconds so far (earlier invocations included); ``since_step`` rides along."""
+        """The run's seconds so far, earlier invocations included (a running phase counts to now)."""
         now = time.perf_counter()
-        train = 0.0
-        if self._train_start is not None:
-            train = (self._train_end or now) - self._train_start
+        own = {p: s + (now - self._open[p] if p in self._open else 0.0) for p, s in self._own.items()}
         # CPU counts from the process start: every invocation's imports and start-up are part of the cost.
-        own = {"demo": self._demo, "train": train, "wall": now - self._start, "cpu": process_cpu_seconds()}
-        return {**{k: self.prior[k] + own[k] for k in PHASES}, "since_step": self.since_step}
+        own.update(wall=now - self._start, cpu=process_cpu_seconds())
+        return {**{k: self._prior[k] + own[k] for k in self._keys}, "since_step": self.since_step}
+
+    def summary(self) -> dict[str, float]:
+        """``<phase>_seconds`` for every phase, rounded, and ``seconds_since_step``."""
+        totals = self.totals()
+        return {
+            **{f"{k}_seconds": round(totals[k], 1) for k in self._keys},
+            "seconds_since_step": totals["since_step"],
+        }

@@ -121,9 +121,10 @@ def run_train(cfg: DictConfig) -> int:
     run_on_rank0(preflight, "checking the run directory and the evaluation protocol")
 
     # -- data --------------------------------------------------------------------------------
-    clock = RunClock(resume_state)
+    clock = RunClock(resume_state.get("elapsed") if resume_state else None, phases=("demo", "train"))
+    clock.start("demo")
     dataset = run_on_rank0(lambda: resolve_dataset(cfg), "making or finding the demonstrations")
-    clock.demos_done()
+    clock.stop("demo")
     pcfg = cfg.policy
 
     def setup() -> tuple[Any, ...]:
@@ -160,6 +161,7 @@ def run_train(cfg: DictConfig) -> int:
     logger_state = None
     if resume_state is not None:
         trainer.load_state_dict(resume_state)
+        clock.resumed_at(trainer.step)
         set_rng_state(resume_state["rng"])
         set_buffer_rng(buffer, resume_state["sampler_rng"])
         history, evals, best = resume_state["history"], resume_state["evals"], resume_state["best"]
@@ -204,7 +206,7 @@ def run_train(cfg: DictConfig) -> int:
     from tqdm import tqdm
 
     t_train = time.perf_counter()
-    clock.training_starts()
+    clock.start("train")
     first_step = trainer.step
     bar = tqdm(total=tcfg.steps, initial=first_step, disable=not is_main, desc="train", dynamic_ncols=True)
 
@@ -247,7 +249,7 @@ def run_train(cfg: DictConfig) -> int:
                 )
     finally:
         bar.close()
-    clock.training_ends()
+    clock.stop("train")
 
     # -- final evaluation and report ------------------------------------------------------
     def report() -> None:
@@ -287,9 +289,7 @@ def run_train(cfg: DictConfig) -> int:
                 chunk_latency_ms_median=result.get("latency_ms_median"),
             )
         # Seconds over every invocation of the run; CPU is the budget when runs share the machine.
-        totals = clock.totals()
-        summary.update({f"{k}_seconds": round(totals[k], 1) for k in ("demo", "train", "wall", "cpu")})
-        summary["seconds_since_step"] = totals["since_step"]  # 0: the figures cover the whole run
+        summary.update(clock.summary())  # seconds_since_step 0: the figures cover the whole run
         save_plots(history, evals, run_dir)
         save_history(history, evals, run_dir)
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
