@@ -130,7 +130,7 @@ def render_multimodal(d: dict) -> str:
 
 
 def render_success(d: dict) -> str:
-    rows, notes = [], []
+    rows, notes, partial_budgets = [], [], []
     for task, block in d["tasks"].items():
         for label, b in block.items():
             metric = b.get("metric", "success_once")  # PushT's headline is Diffusion Policy's score
@@ -145,7 +145,7 @@ def render_success(d: dict) -> str:
             cpu = [r["cpu_seconds"] for r in whole if r.get("cpu_seconds")]
             cpu_mean = sum(cpu) / len(cpu) if cpu else None
             if partial := len(budget) - len(whole):
-                notes.append(f"{task} {label}: CPU s leave out {partial} run(s) timed only from a resume")
+                partial_budgets.append(f"{task} {label}: {partial} run(s)")
             rows.append(
                 [task, label, headline, s["mean"], s["std"], _pooled_interval(b.get("per_seed", [])), s["n"]]
             )
@@ -162,6 +162,11 @@ def render_success(d: dict) -> str:
     )
     if notes:
         text += " " + "; ".join(notes) + " (its test figures use its own sampler)."
+    if partial_budgets:
+        text += (
+            " CPU s per run leave out runs resumed from checkpoints that predate per-run totals (their "
+            f"seconds cover only the last invocation): {'; '.join(partial_budgets)}."
+        )
     a = d.get("args") or {}
     if a.get("demos") and a.get("steps"):
         labels = {label for block in d["tasks"].values() for label in block}

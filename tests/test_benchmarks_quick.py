@@ -137,7 +137,7 @@ def test_success_table_budget_leaves_out_runs_timed_only_from_a_resume():
     text = report.render_success(d)
     row = next(line for line in text.splitlines() if line.startswith("| pusht | flow |"))
     assert row.rstrip(" |").endswith("1,200"), row  # (1000 + 1400) / 2, the partial run left out
-    assert "pusht flow: CPU s leave out 1 run(s) timed only from a resume" in text
+    assert "cover only the last invocation): pusht flow: 1 run(s)." in text
 
 
 def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradictions(tmp_path):
