@@ -294,10 +294,12 @@ def run_budget(run: Run) -> dict[str, Any]:
     """What a finished run cost, from its summary.json: steps, wall and CPU seconds summed over the
     invocations that resumed it. ``seconds_since_step`` > 0: resumed from a checkpoint older than
     those totals, so the seconds count from that step only (summaries written before the field
-    existed lack it and counted their last invocation only)."""
+    existed lack it and counted their last invocation only). ``cpu_seconds_scope`` "process tree": the
+    CPU seconds include simulator workers; without it they missed forkserver-started workers."""
     path = run.run_dir / "summary.json"
     summary = json.loads(path.read_text()) if path.is_file() else {}
-    return {k: summary.get(k) for k in ("steps", "wall_seconds", "cpu_seconds", "seconds_since_step")}
+    keys = ("steps", "wall_seconds", "cpu_seconds", "seconds_since_step", "cpu_seconds_scope")
+    return {k: summary.get(k) for k in keys}
 
 
 def headline_metric(result: dict[str, Any]) -> str:

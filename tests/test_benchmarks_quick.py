@@ -127,17 +127,26 @@ def test_success_table_budget_leaves_out_runs_timed_only_from_a_resume():
     from benchmarks import report
 
     seed = {"success_once": 0.5, "episodes": 50, "steps": 2500, "curve": [[2500, 0.5]]}
+    tree = {"cpu_seconds_scope": "process tree"}
     per_seed = [
-        {**seed, "cpu_seconds": 1000.0, "seconds_since_step": 0},
-        {**seed, "cpu_seconds": 1400.0},  # a summary written before the field existed: whole run
-        {**seed, "cpu_seconds": 140.0, "seconds_since_step": 2500},  # only the resumed test episodes
+        {**seed, **tree, "cpu_seconds": 1000.0, "seconds_since_step": 0},
+        {**seed, **tree, "cpu_seconds": 1400.0},  # a summary written before the field existed
+        {**seed, **tree, "cpu_seconds": 140.0, "seconds_since_step": 2500},  # only the resumed test
     ]
     stats = {"mean": 0.5, "std": 0.0, "min": 0.5, "max": 0.5, "n": 3}
     d = {"tasks": {"pusht": {"flow": {"success_once": stats, "per_seed": per_seed}}}}
     text = report.render_success(d)
     row = next(line for line in text.splitlines() if line.startswith("| pusht | flow |"))
-    assert row.rstrip(" |").endswith("1,200"), row  # (1000 + 1400) / 2, the partial run left out
+    assert row.rstrip(" |").endswith("| 1,200"), row  # (1000 + 1400) / 2, the partial run left out
     assert "cover only the last invocation): pusht flow: 1 run(s)." in text
+    assert "†" not in text
+
+    # Runs recorded before the CPU seconds covered simulator workers: the figure is marked as a floor.
+    per_seed[0].pop("cpu_seconds_scope")
+    text = report.render_success(d)
+    row = next(line for line in text.splitlines() if line.startswith("| pusht | flow |"))
+    assert row.rstrip(" |").endswith("| 1,200 †"), row
+    assert "†: the runs' own processes only" in text
 
 
 def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradictions(tmp_path):
@@ -274,6 +283,7 @@ def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
     budget = block["regression"]["per_seed"][0]
     assert budget["steps"] == 4 and budget["cpu_seconds"] > 0 and budget["wall_seconds"] > 0
     assert budget["seconds_since_step"] == 0  # the seconds cover the whole run
+    assert budget["cpu_seconds_scope"] == "process tree"  # simulator workers included
     assert block["ddpm"]["per_seed"][0]["nfe_per_chunk"] == 100.0  # tested under its own sampler
     assert block["ddpm"]["validation_sampler"] == "ddim16"
     assert block["regression"]["validation_sampler"] is None

@@ -13,11 +13,29 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+#: what ``cpu_seconds`` covers; summaries without it counted the run's own process and its direct
+#: children only, missing simulator workers started through a forkserver.
+CPU_SCOPE = "process tree"
+
 
 def process_cpu_seconds() -> float:
-    """User + system CPU time of this process and its finished children (demo and env workers)."""
+    """User + system CPU time of this process and of every process it started (demo and env workers).
+
+    Finished children come from ``RUSAGE_CHILDREN``; live descendants are read with psutil, each
+    with the children it reaped: a forkserver (how ParallelEnv starts robosuite and PushT workers)
+    reaps the workers it forks, so ``RUSAGE_CHILDREN`` alone misses their time.
+    """
+    import psutil
+
     own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+    total = own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+    for proc in psutil.Process().children(recursive=True):
+        try:
+            t = proc.cpu_times()
+        except (psutil.NoSuchProcess, psutil.AccessDenied):  # ended between listing and reading
+            continue
+        total += t.user + t.system + t.children_user + t.children_system
+    return total
 
 
 class RunClock:
@@ -67,4 +85,5 @@ class RunClock:
         return {
             **{f"{k}_seconds": round(totals[k], 1) for k in self._keys},
             "seconds_since_step": totals["since_step"],
+            "cpu_seconds_scope": CPU_SCOPE,
         }
