@@ -237,6 +237,7 @@ def test_success_overview_puts_every_compared_task_in_one_table_and_figure(tmp_p
         "success_b.json", {"t": {"l1flow": method([0.7], "score", 0.95), "flow": method([0.2], "score", 0.9)}}
     )
     save("success_c.json", {"lone": {"l1flow": method([0.9])}})  # nothing to compare with
+    save("success_a_ddpm.json", {"cube": {"ddpm": method([0.0, 0.0]), "ddpm_ddim16": method([0.0, 0.0])}})
     save("success_d_quick.json", {"q": {"l1flow": method([1.0]), "flow": method([1.0])}}, quick=True)
     e = {"quick": False, "args": {"demos": 9, "steps": 5, "extra": ["policy.timestep_scale=1000"]}}
     (tmp_path / "success_e.json").write_text(
@@ -244,14 +245,17 @@ def test_success_overview_puts_every_compared_task_in_one_table_and_figure(tmp_p
     )
     text = overview_table(tmp_path)
     rows = [line for line in text.splitlines() if line.startswith("| ") and "`" in line]
-    assert [r.split(" | ")[0] for r in rows] == ["| cube", "| t", "| z"]  # lone and quick files left out
+    # lone and quick files left out; a DDPM-only file (its seeds finished later) gets its own row
+    assert [r.split(" | ")[0] for r in rows] == ["| cube", "| cube", "| t", "| z"]
     assert (
-        "9 demos, 5 steps, 1 seed, `policy.timestep_scale=1000` (`success_e.json`)" in rows[2]
+        "9 demos, 5 steps, 1 seed, `policy.timestep_scale=1000` (`success_e.json`)" in rows[3]
     )  # overrides shown
+    zeros = "| – | – | 0.000 [0.00, 0.04] | 0.000 [0.00, 0.04] | – |"  # no bold: nothing to single out
+    assert f"2 seeds (`success_a_ddpm.json`) {zeros}" in rows[1]
     # pooled Wilson: 60/100 -> [0.50, 0.69], 80/100 -> [0.71, 0.87]; the higher mean in bold
     assert "| 0.600 [0.50, 0.69] | – | **0.800 [0.71, 0.87]** | – | – |" in rows[0]
     assert "100 demos, 2,500 steps, 2 seeds (`success_a.json`)" in rows[0]
-    assert "| **0.950 (score; success 0.70)** | 0.900 (score; success 0.20) |" in rows[1]
+    assert "| **0.950 (score; success 0.70)** | 0.900 (score; success 0.20) |" in rows[2]
     assert overview_figure(tmp_path, tmp_path / "o.png") and (tmp_path / "o.png").stat().st_size > 0
 
 
