@@ -143,9 +143,9 @@ def render_success(d: dict) -> str:
             # A run resumed from a checkpoint older than the per-run totals counts only its last
             # invocation (seconds_since_step > 0): its CPU seconds would understate the budget.
             whole = [r for r in budget if not r.get("seconds_since_step")]
-            cpu = [r["cpu_seconds"] for r in whole if r.get("cpu_seconds")]
-            cpu_mean: Any = sum(cpu) / len(cpu) if cpu else None
-            if cpu and any(r.get("cpu_seconds_scope") != CPU_SCOPE for r in whole if r.get("cpu_seconds")):
+            timed = [r for r in whole if r.get("cpu_seconds")]
+            cpu_mean: Any = sum(r["cpu_seconds"] for r in timed) / len(timed) if timed else None
+            if any(r.get("cpu_seconds_scope") != CPU_SCOPE for r in timed):
                 cpu_mean, main_process_only = f"{_num(cpu_mean)} †", True
             if partial := len(budget) - len(whole):
                 partial_budgets.append(f"{task} {label}: {partial} run(s)")

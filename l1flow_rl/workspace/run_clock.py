@@ -80,7 +80,8 @@ class RunClock:
         return {**{k: self._prior[k] + own[k] for k in self._keys}, "since_step": self.since_step}
 
     def summary(self) -> dict[str, float]:
-        """``<phase>_seconds`` for every phase, rounded, and ``seconds_since_step``."""
+        """``<phase>_seconds`` for every phase (and wall, cpu), rounded; ``seconds_since_step``; and
+        ``cpu_seconds_scope``, what the CPU figure covers."""
         totals = self.totals()
         return {
             **{f"{k}_seconds": round(totals[k], 1) for k in self._keys},
