@@ -8,6 +8,7 @@ RGB cropped to 84 + agent position, ResNet-18 GroupNorm encoder, UNet 256/512/10
 * ``l1flow_2nfe_cuda_graph``: the same call (observation in, executable chunk out, fresh noise on
   every replay) recorded once as a CUDA graph with ``torch.cuda.graph`` and replayed after copying
   the new observation into the graph's input tensors;
+* ``l1flow_2nfe_cuda_graph_bf16``: the same graph recorded under bf16 autocast;
 * ``l1flow_2nfe_reduce_overhead``: the policy's forward under ``torch.compile(mode="reduce-overhead")``
   (CUDA graphs through inductor); an error is recorded instead of a time if it fails to compile;
 * ``floor_2_unet``, ``diffusers_ddpm100``, ``diffusers_ddim16``: ``bench_latency``'s floor and
@@ -57,11 +58,16 @@ class CapturedActor:
     they are skipped inside the graph.
     """
 
-    def __init__(self, actor: L1FlowActor, example: TensorDictBase, warmup: int = 3) -> None:
+    def __init__(
+        self, actor: L1FlowActor, example: TensorDictBase, warmup: int = 3, bf16: bool = False
+    ) -> None:
         self.actor = actor
         self.static_obs = example.clone()
         out_key = actor.out_keys[0]
-        with torch.no_grad(), skip_value_checks():
+        # bf16: the network's matrix work under autocast (cache off, as capture needs); the sampler's
+        # arithmetic and the returned chunk stay float32.
+        amp = torch.autocast("cuda", dtype=torch.bfloat16, enabled=bf16, cache_enabled=False)
+        with torch.no_grad(), skip_value_checks(), amp:
             side = torch.cuda.Stream()
             side.wait_stream(torch.cuda.current_stream())
             with torch.cuda.stream(side):  # warm-up off the capture stream, as torch's docs do
@@ -113,9 +119,11 @@ def latency_calls(
         actor(obs.clone())
 
     captured = CapturedActor(actor, obs)
+    captured_bf16 = CapturedActor(actor, obs, bf16=True)
     calls: dict[str, Callable[[], object]] = {
         "l1flow_2nfe": eager,
         "l1flow_2nfe_cuda_graph": lambda: captured(obs),
+        "l1flow_2nfe_cuda_graph_bf16": lambda: captured_bf16(obs),
         "floor_2_unet": _floor_call(actor, obs),
     }
     try:
@@ -138,9 +146,13 @@ def latency_calls(
 def run(args: argparse.Namespace) -> dict[str, Any]:
     device = torch.device("cuda")
     torch.manual_seed(0)
+    # cuDNN's autotuner picks each convolution's fastest algorithm for these exact shapes (the
+    # default heuristics can pick slow ones for batch-1 1-D convolutions); it applies to every arm.
+    torch.backends.cudnn.benchmark = args.cudnn_benchmark
     figures: dict[str, Any] = {
         "machine": machine_info(device),
         "quick": args.quick,
+        "cudnn_benchmark": args.cudnn_benchmark,
         "batch": 1,
         "networks": {},
     }
@@ -174,6 +186,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=50)
     parser.add_argument("--no-peers", action="store_true", help="skip diffusers' schedulers")
     parser.add_argument("--quick", action="store_true", help="small image UNet, 3 rounds: checks the script")
+    parser.add_argument(
+        "--cudnn-benchmark", action="store_true", help="let cuDNN autotune each convolution (every arm)"
+    )
     args = parser.parse_args(argv)
     if not torch.cuda.is_available():
         parser.exit(2, NO_CUDA.format(version=torch.__version__) + "\n")

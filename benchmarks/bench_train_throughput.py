@@ -184,11 +184,14 @@ def measure(net: Network, amp: bool, compile: bool, args: argparse.Namespace) ->
     return result
 
 
-def run(args: argparse.Namespace) -> dict[str, Any]:
+def run(args: argparse.Namespace, out: str | None = None) -> dict[str, Any]:
+    """Every network x setting; with ``out``, the figures so far are saved after each setting, so a
+    run stopped part-way (a device lease running out, compilation taking longer than planned) keeps
+    what it measured (``"complete": false`` until the last setting)."""
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     device = torch.device(args.device)
-    figures: dict[str, Any] = {"machine": machine_info(device), "quick": args.quick}
+    figures: dict[str, Any] = {"machine": machine_info(device), "quick": args.quick, "complete": False}
     figures["setup"] = {
         "batch": args.batch,
         "rounds": args.rounds,
@@ -217,8 +220,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 if device.type == "cuda":
                     torch.cuda.empty_cache()  # the next setting builds its own model
                 print(f"{name} {key}: {block['settings'][key]['trainer_over_model']}x", flush=True)
-        figures["networks"][name] = block
+                figures["networks"][name] = block
+                if out is not None:
+                    save_results(out, figures)
     figures["machine"]["load_average_1min_end"] = machine_info(device)["load_average_1min"]
+    figures["complete"] = True
     return figures
 
 
@@ -249,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
         args.steps_per_call, args.episodes, args.length = 1, 2, 20
     args.batch = {"state": args.state_batch, "image": args.image_batch}
     out = args.out or f"benchmarks/results/train_throughput_{torch.device(args.device).type}.json"
-    figures = run(args)
+    figures = run(args, out)
     save_results(out, figures)
     for name, block in figures["networks"].items():
         rows = [

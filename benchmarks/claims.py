@@ -128,7 +128,13 @@ def _convergence_row(block: dict[str, Any]) -> list[str] | None:
 def _speed_rows(results: Path) -> list[list[str]]:
     rows = []
     lo, hi = PAPER_SPEEDUP
-    for name, network in (("latency.json", "state UNet"), ("latency_image.json", "image network")):
+    files = (
+        ("latency.json", "state UNet"),
+        ("latency_image.json", "image network"),
+        ("latency_samplers_cuda.json", "state UNet"),
+        ("latency_samplers_cuda_image.json", "image network"),
+    )
+    for name, network in files:
         d = _load(results / name)
         if d is None:
             continue

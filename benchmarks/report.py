@@ -54,7 +54,7 @@ def _machine(d: dict) -> str:
         if "load_average_1min" in m:
             parts.append(f"load {m['load_average_1min']}")
         if m.get("gpu"):
-            parts.append(m["gpu"])
+            parts += [m["gpu"], f"torch {m.get('torch')}"]
         return ", ".join(str(p) for p in parts)
     return str(m)
 
@@ -115,6 +115,32 @@ def render_latency(d: dict) -> str:
         rows = [[k, v["wall_ms"], v["cpu_ms"]] for k, v in t["ms"].items()]
         out.append(f"Training step, batch {t['batch']}:\n")
         out.append(_table(["loss", "wall ms", "CPU ms"], rows))
+    return "\n".join(out)
+
+
+def render_latency_cuda(d: dict) -> str:
+    """bench_latency_cuda: batch-1 chunks on the GPU, eager and captured, against diffusers' loops."""
+    out = []
+    if d.get("cudnn_benchmark"):
+        out.append("cuDNN autotuning on (every arm).\n")
+    for name, block in d["networks"].items():
+        rows = [[method, ms["wall_ms"], block["chunks_per_s"][method]] for method, ms in block["ms"].items()]
+        out.append(f"{name} network ({_num(block['parameters'])} parameters), batch 1:\n")
+        out.append(_table(["method", "wall ms", "chunks/s"], rows))
+        ratios = [
+            f"{key.replace('_', ' ')} {block[key]}×"
+            for key in (
+                "cuda_graph_speedup_over_eager",
+                "cuda_graph_speedup_over_diffusers_ddpm100",
+                "cuda_graph_speedup_over_diffusers_ddim16",
+                "eager_speedup_over_diffusers_ddpm100",
+                "eager_speedup_over_diffusers_ddim16",
+            )
+            if key in block
+        ]
+        out.append("\n" + "; ".join(ratios) + ".\n")
+        for key, err in block.get("errors", {}).items():
+            out.append(f"{key}: not measured ({err})\n")
     return "\n".join(out)
 
 
@@ -342,9 +368,10 @@ def render_train_throughput(d: dict) -> str:
                     r["trainer_over_model"],
                 ]
             )
-    return _table(
+    table = _table(
         ["network", "setting", "trainer samples/s", "bare update samples/s", "trainer / bare"], rows
     )
+    return table + (f"\n\n{d['note']}" if d.get("note") else "")
 
 
 def render_training_runs(d: dict) -> str:
@@ -450,6 +477,17 @@ RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
     (r"main_job\.json", "Main job", render_main_job),
     (r"latency\.json", "Inference latency and training step (state network)", render_latency),
     (r"latency_image\.json", "Inference latency (image network)", render_latency),
+    (
+        r"latency_samplers_cuda\.json",
+        "Inference latency on CUDA, every sampler (state network)",
+        render_latency,
+    ),
+    (
+        r"latency_samplers_cuda_image\.json",
+        "Inference latency on CUDA, every sampler (image network)",
+        render_latency,
+    ),
+    (r"latency_cuda.*\.json", "CUDA latency at batch 1: eager, CUDA graph, compile", render_latency_cuda),
     (r"success_.*\.json", "Success and convergence", render_success),
     (r"ablations_.*\.json", "Ablations", render_ablations),
     (r"flow_q_.*\.json", "Flow-Q fine-tuning against continued BC", render_flow_q),

@@ -151,7 +151,12 @@ def test_captured_latency_benchmark_runs_and_matches_eager(tmp_path):
     assert bench_latency_cuda.main(["--quick", "--no-peers", "--out", str(out)]) == 0
     figures = json.loads(out.read_text())
     for block in figures["networks"].values():
-        assert {"l1flow_2nfe", "l1flow_2nfe_cuda_graph", "floor_2_unet"} <= set(block["ms"])
+        assert {
+            "l1flow_2nfe",
+            "l1flow_2nfe_cuda_graph",
+            "l1flow_2nfe_cuda_graph_bf16",
+            "floor_2_unet",
+        } <= set(block["ms"])
     # The graph computes what the eager call computes: same weights, zero noise -> the same chunk.
     actor = bench_latency_cuda.build_state_actor("l1flow_2nfe", torch.device("cuda"))
     obs = bench_latency_cuda.observation("state", torch.device("cuda"))
@@ -167,3 +172,26 @@ def test_captured_latency_benchmark_runs_and_matches_eager(tmp_path):
         with torch.no_grad():
             eager_new = actor(new_obs.clone())["action_chunk"]
         torch.testing.assert_close(captured(new_obs).clone(), eager_new)  # the graph reads the new input
+        # Under bf16 autocast the graph returns a float32 chunk of the same shape, near the fp32 one.
+        chunk_bf16 = bench_latency_cuda.CapturedActor(actor, obs, bf16=True)(new_obs).clone()
+        assert chunk_bf16.dtype == torch.float32 and chunk_bf16.shape == eager_new.shape
+        assert (chunk_bf16 - eager_new).abs().max() < 0.1
+
+
+def test_compiled_trainer_then_other_batch_sizes_on_cuda():
+    # train.compile=true: training at one batch size, then the policy at evaluation's batch sizes.
+    # With dynamic shapes, torch 2.11's GroupNorm-backward kernel failed here ("misaligned address");
+    # the Trainer compiles with static shapes, so each size gets its own kernels.
+    torch.manual_seed(0)
+    actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64), timestep_embed_dim=16).cuda()
+    trainer = Trainer(actor, L1FlowLoss(actor), total_steps=10, lr=1e-3, warmup_steps=0, compile=True)
+    for n in (32, 24):  # the second size recompiles rather than going dynamic
+        batch = TensorDict(
+            {"observation": torch.randn(n, 2, 5), "action_chunk": torch.rand(n, 16, 2) * 2 - 1}, [n]
+        ).cuda()
+        losses = torch.stack([trainer.train_step(batch)["loss"] for _ in range(3)])
+        assert torch.isfinite(losses).all()
+    for n in (1, 7):
+        with torch.no_grad():
+            chunk = actor(TensorDict({"observation": torch.randn(n, 2, 5)}, [n]).cuda())["action_chunk"]
+        assert chunk.shape == (n, 8, 2) and torch.isfinite(chunk).all()  # the 8 executed actions

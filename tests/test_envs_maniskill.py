@@ -159,3 +159,25 @@ def test_chunk_executor_replans_every_action_steps_and_after_resets(state2):
 @pytest.mark.parametrize("num_envs", [1, 2])
 def test_state_envs_honour_the_simulator_contract(num_envs, state1, state2):
     check_env_contract(state1 if num_envs == 1 else state2)
+
+
+def test_physx_cuda_without_its_gpu_library_names_the_file_and_the_url(tmp_path, monkeypatch):
+    # Offline, SAPIEN's first-use download of libPhysXGpu_64.so fails deep inside gym.make with a bare
+    # connection error; the adapter names the file and where it comes from. SAPIEN's own enable_gpu
+    # runs here, with the network cut at requests.get.
+    pytest.importorskip("mani_skill")
+    import requests
+    from l1flow_rl.envs.maniskill.env import _check_physx_gpu_library, physx_gpu_library
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+
+    def offline(url, *args, **kwargs):
+        raise requests.ConnectionError(f"no route to {url}")
+
+    monkeypatch.setattr(requests, "get", offline)
+    path, url = physx_gpu_library()
+    assert path.parent.parent == tmp_path / ".sapien" / "physx" and path.name == "libPhysXGpu_64.so"
+    with pytest.raises(RuntimeError) as err:
+        _check_physx_gpu_library()
+    message = str(err.value)
+    assert str(path) in message and url in message and "ConnectionError" in message

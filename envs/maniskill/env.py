@@ -7,6 +7,7 @@ GPU, per-episode seeds, and surviving a simulator exception without killing a wo
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -45,6 +46,8 @@ def make_gym_env(task: TaskConfig, num_envs: int, device: torch.device, *, rende
         backend = "physx_cpu"
     else:
         backend = "physx_cuda" if device.index is None else f"physx_cuda:{device.index}"
+    if backend.startswith("physx_cuda"):
+        _check_physx_gpu_library()
     try:
         return gym.make(
             task.env_id,
@@ -61,6 +64,34 @@ def make_gym_env(task: TaskConfig, num_envs: int, device: torch.device, *, rende
         if any(marker in str(err).lower() for marker in ("physical device", "vulkan", "vk::")):
             raise RuntimeError(f"{err}\n{VULKAN_HINT}") from err
         raise
+
+
+def physx_gpu_library() -> tuple[Path, str]:
+    """Where SAPIEN looks for PhysX's GPU library (``libPhysXGpu_64.so``, not in its wheel) and the
+    release archive it downloads it from on first use of physx_cuda."""
+    import sapien
+
+    version = sapien.physx.version()
+    url = f"https://github.com/sapien-sim/physx-precompiled/releases/download/{version}/linux-so.zip"
+    return Path.home() / ".sapien" / "physx" / version / "libPhysXGpu_64.so", url
+
+
+def _check_physx_gpu_library() -> None:
+    """Fetch PhysX's GPU library the way SAPIEN does, but fail with the file and URL named: offline,
+    SAPIEN's own download ends in a bare connection error deep inside ``gym.make``."""
+    path, url = physx_gpu_library()
+    if path.is_file():
+        return
+    import sapien
+
+    try:
+        sapien.physx.enable_gpu()  # downloads the library, then loads it
+    except Exception as err:
+        raise RuntimeError(
+            f"physx_cuda needs PhysX's GPU library {path}, which SAPIEN downloads from {url} on first use, "
+            f"and that failed ({type(err).__name__}: {err}). On a machine without access to GitHub, "
+            f"download the zip elsewhere and unzip it into {path.parent}."
+        ) from err
 
 
 VULKAN_HINT = (

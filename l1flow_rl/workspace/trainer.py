@@ -86,7 +86,10 @@ class Trainer:
         self.actor, self.loss_fn = actor, loss_fn
         self.grad_clip, self.amp, self.check_values = grad_clip, amp, check_values
         if compile:
-            actor.policy.net.compile()  # in place: the state_dict keys stay the same
+            # In place (the state_dict keys stay the same), with static shapes: a second batch size
+            # (evaluation's) then compiles its own kernels instead of dynamic-shape ones; on torch
+            # 2.11 / H100 a dynamic GroupNorm-backward kernel failed with "misaligned address".
+            actor.policy.net.compile(dynamic=False)
         params = [p for p in actor.parameters() if p.requires_grad]
         # The fused kernel (one launch for all parameters) where it is the fast path; elsewhere
         # torch's default, so CPU runs stay bit-for-bit what they were.
