@@ -195,3 +195,35 @@ def test_compiled_trainer_then_other_batch_sizes_on_cuda():
         with torch.no_grad():
             chunk = actor(TensorDict({"observation": torch.randn(n, 2, 5)}, [n]).cuda())["action_chunk"]
         assert chunk.shape == (n, 8, 2) and torch.isfinite(chunk).all()  # the 8 executed actions
+
+
+def test_train_job_on_cuda_then_eval_of_its_checkpoint_on_cpu(tmp_path):
+    # `l1flow-rl train device=cuda` end to end on the point-mass double (CPU simulator, CUDA policy),
+    # then the checkpoint it wrote re-scored with device=cpu: a GPU-trained policy loads on a CPU box.
+    from doubles.point_mass import POINT_MASS_TASK  # noqa: F401  (registers the double)
+    from test_envs_point_mass import TASK_OVERRIDES
+
+    from l1flow_rl.cli import main
+
+    run_dir = tmp_path / "run"
+    common = [*TASK_OVERRIDES, "eval.num_envs=2"]
+    train = [
+        *common,
+        "policy.down_dims=[16,32]",
+        "demos.num=4",
+        "train.steps=30",
+        "train.batch_size=16",
+        "train.warmup_steps=2",
+        "eval.episodes=2",
+        "device=cuda",
+        f"data_dir={tmp_path / 'data'}",
+        f"run_dir={run_dir}",
+    ]
+    assert main(["train", *train]) == 0
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["steps"] == 30
+    eval_dir = tmp_path / "eval"
+    rescore = [*common, f"checkpoint={run_dir / 'checkpoints' / 'best.pt'}", "eval.episodes=3", "device=cpu"]
+    assert main(["eval", *rescore, f"run_dir={eval_dir}"]) == 0
+    rescored = json.loads((eval_dir / "eval.json").read_text())
+    assert rescored["episodes"] == 3 and [e["length"] for e in rescored["per_episode"]] == [30, 30, 30]

@@ -261,3 +261,22 @@ def test_cli_eval_writes_eval_json(tmp_path):
     assert written["episodes"] == 2 and written["task"] == "maniskill_pushcube"
     assert {"success_once", "success_at_end", "return", "latency_ms_median", "per_episode"} <= set(written)
     assert [e["length"] for e in written["per_episode"]] == [10, 10]
+
+
+def test_videos_without_an_mp4_writer_are_refused_before_any_episode(monkeypatch, tmp_path):
+    # Without imageio-ffmpeg, imageio hands a .mp4 to another plugin that fails only when the first
+    # video is written (seen on a GPU machine: "TiffWriter.write() got an unexpected keyword 'fps'",
+    # after the whole training). The plan decides up front.
+    from l1flow_rl.evaluation import videos
+
+    assert videos.video_episodes_to_film(None, "cpu") == 0  # no videos by default on the CPU
+    assert videos.video_episodes_to_film(3, "cpu") == 3  # imageio-ffmpeg is installed here
+    monkeypatch.setattr(videos, "_has_mp4_writer", lambda: False)
+    with pytest.raises(ValueError, match=r"eval.video_episodes=2: .*pip install imageio-ffmpeg"):
+        videos.video_episodes_to_film(2, "cpu")
+    assert videos.video_episodes_to_film(0, "cpu") == 0
+    with pytest.warns(UserWarning, match="imageio-ffmpeg"):
+        assert videos.video_episodes_to_film(None, torch.device("cuda")) == 0  # the GPU default, dropped
+    with pytest.raises(ImportError, match="imageio-ffmpeg"):
+        videos.write_video(tmp_path / "v.mp4", [np.zeros((8, 8, 3), np.uint8)], fps=10)
+    assert not (tmp_path / "v.mp4").exists()

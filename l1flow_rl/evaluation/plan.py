@@ -16,7 +16,7 @@ from l1flow_rl.config import TaskConfig
 from l1flow_rl.config.overrides import overrides_under
 from l1flow_rl.evaluation.evaluator import BUILTIN_METRICS
 from l1flow_rl.evaluation.protocols import EvalProtocol, get_protocol
-from l1flow_rl.evaluation.videos import default_video_episodes
+from l1flow_rl.evaluation.videos import video_episodes_to_film
 
 __all__ = ["SPLITS", "EvalPlan", "check_seed_ranges", "resolve_plan", "task_from"]
 
@@ -131,7 +131,7 @@ def resolve_plan(
             f"{task.simulator!r} yields only {sorted(known)}"
         )
     run_device = resolve_device(device)
-    video = ev.video_episodes if ev.video_episodes is not None else default_video_episodes(run_device)
+    video = video_episodes_to_film(ev.video_episodes, run_device)
     return EvalPlan(
         protocol=protocol,
         task=eval_task,

@@ -11,13 +11,40 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["add_frames", "default_video_episodes", "log_videos", "write_video"]
+__all__ = ["add_frames", "default_video_episodes", "log_videos", "video_episodes_to_film", "write_video"]
+
+VIDEO_WRITER_HINT = "mp4 videos need imageio's ffmpeg backend: pip install imageio-ffmpeg (in l1flow-rl[app])"
+
+
+def _has_mp4_writer() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("imageio_ffmpeg") is not None
 
 
 def default_video_episodes(device: str | torch.device) -> int:
     """Episodes filmed when ``eval.video_episodes`` is not set: one on a GPU, none on the CPU, where
     the first rendered frame costs seconds (the renderer starts) and every frame slows the episode."""
     return 1 if torch.device(device).type == "cuda" else 0
+
+
+def video_episodes_to_film(configured: int | None, device: str | torch.device) -> int:
+    """``eval.video_episodes``, or its device default when unset, checked before any episode runs:
+    without imageio's ffmpeg backend imageio would pick another writer for the .mp4 and fail only
+    when the first video is written, after the training. Asked for explicitly, that is an error;
+    the GPU default of one video falls back to none, with a warning."""
+    wanted = default_video_episodes(device) if configured is None else int(configured)
+    if wanted <= 0 or _has_mp4_writer():
+        return max(wanted, 0)
+    if configured is not None:
+        raise ValueError(
+            f"eval.video_episodes={configured}: {VIDEO_WRITER_HINT}; or set eval.video_episodes=0"
+        )
+    warnings.warn(
+        f"no evaluation videos (eval.video_episodes defaults to 1 on a GPU): {VIDEO_WRITER_HINT}",
+        stacklevel=2,
+    )
+    return 0
 
 
 def add_frames(slots: Sequence[Any], env: Any, which: Sequence[int] | None = None) -> None:
@@ -37,6 +64,8 @@ def write_video(path: Path, frames: Sequence[np.ndarray], fps: int) -> Path:
     """Write uint8 frames [H, W, 3] as an mp4 (imageio's ffmpeg)."""
     import imageio
 
+    if not _has_mp4_writer():
+        raise ImportError(VIDEO_WRITER_HINT)
     path.parent.mkdir(parents=True, exist_ok=True)
     imageio.mimwrite(path, list(frames), fps=fps)
     return path
