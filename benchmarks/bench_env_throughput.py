@@ -6,6 +6,8 @@ Three settings, each measured in this run against its own raw baseline:
              CPUGymWrapper, autoreset disabled), through both of make_env's CPU backends: "async"
              (the default, ManiSkillAsyncEnv) and "parallel" (TorchRL's ParallelEnv);
   gpu_<N>env one physx_cuda scene of N envs (skipped, with a note, when CUDA is absent).
+In cpu_1env and gpu_<N>env a further side, ``l1flow_policy``, runs the adapter with an L1 Flow actor
+choosing the actions (one 2-NFE chunk per 8 steps, as evaluation runs), against the same raw baseline.
 All sides step the same pre-drawn random actions and reset at the time limit; the adapters run
 with their history stacking (the env the evaluator uses). Start-up is not timed. Raw and adapter
 blocks alternate (``--rounds``) and the medians are reported, so that load drifting on a shared
@@ -19,6 +21,7 @@ machine hits all alike; this process's CPU time per step is reported too.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import statistics
 import time
@@ -93,6 +96,38 @@ def adapter(
     return step, env.close
 
 
+def policy_in_loop(task: TaskConfig, device: torch.device, num_envs: int, **make_kwargs) -> Stepper:
+    """make_env's env driven by an L1 Flow actor of the task's default network (PolicyConfig; the
+    weights do not change the time) under TorchRL's ``MultiStepActorWrapper``, as the evaluator runs
+    it: one 2-NFE chunk per ``action_steps`` env steps, re-planned where an env resets. The raw side
+    it is compared with steps random actions, so the ratio prices the policy and the adapter together."""
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+    from torchrl.modules import MultiStepActorWrapper
+
+    from l1flow_rl.config import PolicyConfig
+    from l1flow_rl.workspace.build import build_actor
+
+    env = make_env(task, num_envs=num_envs, device=device, **make_kwargs)
+    td = env.reset()
+    obs = td["observation"]
+    per_step = len(td.batch_size) + 1  # after the env batch and the history dimension
+    shapes = (
+        {"state": tuple(obs.shape[per_step:])}
+        if isinstance(obs, torch.Tensor)
+        else {k: tuple(v.shape[per_step:]) for k, v in obs.items()}
+    )
+    policy = dataclasses.asdict(PolicyConfig())
+    actor = build_actor(policy, shapes, env.action_spec.shape[-1]).to(device).eval()
+    executor = MultiStepActorWrapper(actor, n_steps=policy["action_steps"], init_key="is_init")
+    state = {"td": td}
+
+    def step(i: int) -> None:
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            _, state["td"] = env.step_and_maybe_reset(executor(state["td"]))
+
+    return step, env.close
+
+
 def _timed_block(
     step: Callable[[int], None], first: int, count: int, device: torch.device
 ) -> tuple[float, float]:
@@ -160,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=600, help="timed steps per env and side, after warm-up")
     parser.add_argument("--rounds", type=int, default=6, help="alternating raw/adapter blocks")
     parser.add_argument("--warmup", type=int, default=30)
-    parser.add_argument("--gpu-envs", type=int, nargs="*", default=[256, 1024])
+    parser.add_argument("--gpu-envs", type=int, nargs="*", default=[256, 1024, 4096])
     parser.add_argument(
         "--threads", type=int, default=1, help="torch threads here (workers use 1); 0 keeps torch's default"
     )
@@ -188,7 +223,10 @@ def main(argv: list[str] | None = None) -> int:
         measure(
             "cpu_1env",
             lambda: raw_in_process(task, cpu, 1, one),
-            {"in_process": lambda: adapter(task, cpu, 1, one)},
+            {
+                "in_process": lambda: adapter(task, cpu, 1, one),
+                "l1flow_policy": lambda: policy_in_loop(task, cpu, 1),
+            },
             1,
             cpu,
             args,
@@ -214,7 +252,10 @@ def main(argv: list[str] | None = None) -> int:
                 measure(
                     f"gpu_{n}env",
                     lambda n=n, acts=acts: raw_in_process(task, gpu, n, acts),
-                    {"physx_cuda": lambda n=n, acts=acts: adapter(task, gpu, n, acts)},
+                    {
+                        "physx_cuda": lambda n=n, acts=acts: adapter(task, gpu, n, acts),
+                        "l1flow_policy": lambda n=n: policy_in_loop(task, gpu, n),
+                    },
                     n,
                     gpu,
                     args,

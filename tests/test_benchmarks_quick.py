@@ -454,11 +454,36 @@ def test_env_throughput_quick_mode_times_adapters_against_raw_maniskill(tmp_path
     settings = {r["setting"]: r for r in figures["rows"]}
     assert {"cpu_1env", "cpu_2proc"} <= set(settings)
     assert set(settings["cpu_2proc"]["adapters"]) == {"async", "parallel"}
+    assert set(settings["cpu_1env"]["adapters"]) == {"in_process", "l1flow_policy"}
     for row in figures["rows"]:
         assert row["raw_steps_per_s"] > 0
         for a in row["adapters"].values():
             assert a["steps_per_s"] > 0
             assert a["over_raw"] == pytest.approx(a["steps_per_s"] / row["raw_steps_per_s"], rel=0.01)
+
+
+@pytest.mark.maniskill
+def test_policy_in_the_loop_plans_one_chunk_per_8_steps_on_real_maniskill():
+    pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
+    import torch
+    from torch.nn.modules.module import register_module_forward_hook
+
+    from benchmarks.bench_env_throughput import policy_in_loop
+    from l1flow_rl import L1FlowActor
+    from l1flow_rl.config import load_task_config
+
+    calls = []
+    hook = register_module_forward_hook(
+        lambda module, args, out: calls.append(1) if isinstance(module, L1FlowActor) else None
+    )
+    step, close = policy_in_loop(load_task_config("maniskill_pushcube"), torch.device("cpu"), 1)
+    try:
+        for i in range(17):
+            step(i)
+    finally:
+        hook.remove()
+        close()
+    assert len(calls) == 3  # steps 0, 8 and 16 start a chunk; the wrapper replays the rest
 
 
 @pytest.mark.maniskill
