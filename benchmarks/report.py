@@ -144,6 +144,21 @@ def render_latency_cuda(d: dict) -> str:
     return "\n".join(out)
 
 
+def render_open_loop(d: dict) -> str:
+    """bench_open_loop: each trained run's executed steps against the demonstrator's, same windows."""
+    rows = []
+    for label, m in d["methods"].items():
+        per_seed = ", ".join(f"{r['l1']:.4f}" for r in d["runs"][label].values())
+        rows.append([label, m["l1_mean"], m["l1_std"], m["seeds"], per_seed])
+    note = (
+        f"{d['windows']} windows of each run's own demonstrations (seed {d['window_seed']}), one sampled "
+        "chunk each; error in normalised action units ([-1, 1] per dimension) over the executed steps."
+    )
+    if d.get("missing"):
+        note += f" Runs without a checkpoint, left out: {len(d['missing'])}."
+    return _table(["method", "mean abs error", "std over seeds", "seeds", "per seed"], rows) + "\n\n" + note
+
+
 def render_multimodal(d: dict) -> str:
     out = [f"{d['steps']} training steps per method.\n"]
     for family, block in d["families"].items():
@@ -489,6 +504,7 @@ RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
     ),
     (r"latency_cuda.*\.json", "CUDA latency at batch 1: eager, CUDA graph, compile", render_latency_cuda),
     (r"success_.*\.json", "Success and convergence", render_success),
+    (r"open_loop_.*\.json", "Open-loop action error of the trained runs", render_open_loop),
     (r"ablations_.*\.json", "Ablations", render_ablations),
     (r"flow_q_.*\.json", "Flow-Q fine-tuning against continued BC", render_flow_q),
     (r"multimodal\.json", "Multi-modality (toy)", render_multimodal),

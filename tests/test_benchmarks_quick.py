@@ -526,3 +526,53 @@ def test_report_lists_unrendered_results_but_never_a_quick_run(tmp_path):
     section = build_section(tmp_path)
     assert "Other saved results: `something_new.json`." in section
     assert "pusht_expert_quick" not in section
+
+
+def test_open_loop_error_reads_each_runs_checkpoint_on_the_same_windows(tmp_path):
+    # Two tiny runs of the point-mass double laid out as bench_success lays them out; the benchmark
+    # scores both on the same demonstration windows, and DDPM runs also under DDIM-16.
+    from doubles.point_mass import POINT_MASS_TASK  # noqa: F401  (registers the double)
+    from test_envs_point_mass import TASK_OVERRIDES
+
+    from benchmarks import bench_open_loop
+    from l1flow_rl.cli import main
+
+    root = tmp_path / "grid"
+    for method in ("l1flow", "ddpm"):
+        run = root / "point_mass_reach" / method / "seed0"
+        args = [
+            *TASK_OVERRIDES,
+            f"policy={method}",
+            "policy.down_dims=[16,32]",
+            "demos.num=4",
+            "train.steps=40",
+            "train.batch_size=16",
+            "train.warmup_steps=2",
+            "eval.episodes=2",
+            "eval.num_envs=2",
+            "device=cpu",
+            f"data_dir={tmp_path / 'data'}",
+            f"run_dir={run}",
+        ]
+        assert main(["train", *args]) == 0
+        assert (run / "checkpoints" / "best.pt").is_file()
+    out = tmp_path / "open_loop.json"
+    argv = ["--root", str(root), "--task", "point_mass_reach", "--policies", "l1flow", "ddpm", "flow"]
+    argv += ["--seeds", "0", "--windows", "40", "--quick"]
+    assert bench_open_loop.main([*argv, "--out", str(out)]) == 0
+    figures = json.loads(out.read_text())
+    assert set(figures["runs"]) == {"l1flow", "ddpm", "ddpm_ddim16"}
+    assert figures["missing"] == [
+        str(root / "point_mass_reach" / "flow" / "seed0" / "checkpoints" / "best.pt")
+    ]
+    for label, runs in figures["runs"].items():
+        r = runs["seed0"]
+        assert 0 < r["l1"] < 2 and len(r["l1_per_dim"]) == 2, label  # normalised actions: |error| <= 2
+        assert r["steps_compared"] > 0
+        assert figures["methods"][label]["l1_mean"] == r["l1"]
+    # Same windows, same noise: a second reading of a checkpoint gives the same figure.
+    again = tmp_path / "again.json"
+    assert (
+        bench_open_loop.main([*argv, "--seeds", "0", "--windows", "40", "--quick", "--out", str(again)]) == 0
+    )
+    assert json.loads(again.read_text())["runs"] == figures["runs"]
