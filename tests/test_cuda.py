@@ -197,7 +197,8 @@ def test_compiled_trainer_then_other_batch_sizes_on_cuda():
         assert chunk.shape == (n, 8, 2) and torch.isfinite(chunk).all()  # the 8 executed actions
 
 
-def test_train_job_on_cuda_then_eval_of_its_checkpoint_on_cpu(tmp_path):
+@pytest.mark.parametrize("env_device", [None, "cpu"])
+def test_train_job_on_cuda_then_eval_of_its_checkpoint_on_cpu(tmp_path, env_device):
     # `l1flow-rl train device=cuda` end to end on the point-mass double (CPU simulator, CUDA policy),
     # then the checkpoint it wrote re-scored with device=cpu: a GPU-trained policy loads on a CPU box.
     from doubles.point_mass import POINT_MASS_TASK  # noqa: F401  (registers the double)
@@ -216,12 +217,15 @@ def test_train_job_on_cuda_then_eval_of_its_checkpoint_on_cpu(tmp_path):
         "train.warmup_steps=2",
         "eval.episodes=2",
         "device=cuda",
+        *([f"eval.env_device={env_device}"] if env_device else []),  # cpu: envs on the CPU, policy on the GPU
         f"data_dir={tmp_path / 'data'}",
         f"run_dir={run_dir}",
     ]
     assert main(["train", *train]) == 0
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["steps"] == 30
+    record = json.loads((run_dir / "eval.json").read_text())["protocol"]
+    assert record["env_device"].startswith(env_device or "cuda")
     eval_dir = tmp_path / "eval"
     rescore = [*common, f"checkpoint={run_dir / 'checkpoints' / 'best.pt'}", "eval.episodes=3", "device=cpu"]
     assert main(["eval", *rescore, f"run_dir={eval_dir}"]) == 0

@@ -50,6 +50,17 @@ def test_maniskill_protocol_uses_the_baselines_settings(task, steps):
     assert str(plan.env_device) == "cpu" and plan.deviations == []
 
 
+def test_eval_env_device_picks_where_the_simulator_runs():
+    # None: the protocol's (maniskill: cpu), else the run's device; given, it wins and a protocol
+    # that fixes another device records the deviation.
+    assert str(plan_for("maniskill_pushcube", "eval.env_device=cpu").env_device) == "cpu"
+    plan = plan_for("maniskill_pushcube", "eval.protocol=maniskill", "eval.env_device=cuda")
+    assert str(plan.env_device) == "cuda"
+    assert plan.deviations == ["eval.env_device=cuda (protocol 'maniskill': cpu)"]
+    with pytest.raises(ValueError, match=r"eval.env_device='gpu0': expected a torch device"):
+        plan_for("maniskill_pushcube", "eval.env_device=gpu0")
+
+
 def test_command_line_values_beat_the_protocol_and_are_recorded():
     plan = plan_for(
         "maniskill_pushcube", "eval.protocol=maniskill", "eval.episodes=3", "task.max_episode_steps=12"

@@ -27,6 +27,10 @@ class EvalConfig:
     val_sampler: str | None = None
     val_sampler_kwargs: dict = field(default_factory=dict)
     num_envs: int = 2
+    # Where the simulator runs (None: the protocol's, else the run's device). "cpu" with device=cuda
+    # trains and samples on the GPU while the envs step on their CPU backend (ManiSkill: physx_cpu
+    # workers), e.g. where ManiSkill's physx_cuda is unavailable.
+    env_device: str | None = None
     # Episodes filmed (mp4 in run_dir/videos, and to the logger); None: 1 on a GPU, 0 on the CPU,
     # where the first rendered frame costs seconds.
     video_episodes: int | None = None

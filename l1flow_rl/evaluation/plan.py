@@ -131,6 +131,17 @@ def resolve_plan(
             f"{task.simulator!r} yields only {sorted(known)}"
         )
     run_device = resolve_device(device)
+    configured_env = ev.get("env_device")
+    if configured_env is not None:
+        try:
+            torch.device(configured_env)
+        except RuntimeError as err:
+            raise ValueError(
+                f"eval.env_device={configured_env!r}: expected a torch device such as 'cpu' or 'cuda' ({err})"
+            ) from None
+        env_device = pick("eval.env_device", str(configured_env), protocol.env_device)
+    else:
+        env_device = protocol.env_device
     video = video_episodes_to_film(ev.video_episodes, run_device)
     return EvalPlan(
         protocol=protocol,
@@ -140,7 +151,7 @@ def resolve_plan(
         val_episodes=val_episodes,
         val_seed=int(ev.val_seed),
         num_envs=int(ev.num_envs),
-        env_device=torch.device(protocol.env_device) if protocol.env_device else run_device,
+        env_device=torch.device(env_device) if env_device else run_device,
         deterministic=bool(ev.deterministic),
         video_episodes=int(video),
         video_fps=int(ev.video_fps),
