@@ -49,6 +49,12 @@ def _machine(d: dict) -> str:
     if m is None and "cpu_count" in d:
         load = d.get("loadavg_before") or d.get("loadavg_after")
         return f"{d['cpu_count']} cores" + (f", load {load[0]:.2f}" if load else "")
+    if isinstance(m, dict) and (d.get("args") or {}).get("collect_only"):
+        # the collecting process's threads and load say nothing of the runs, which trained earlier
+        return (
+            f"{m.get('cpu', '?')}, {m.get('cores')} cores (where the runs were collected; they trained in "
+            "earlier invocations, whose thread counts and load this file does not hold)"
+        )
     if isinstance(m, dict):
         parts = [m.get("cpu", "?"), f"{m.get('cores')} cores", f"torch threads {m.get('torch_threads')}"]
         if "load_average_1min" in m:

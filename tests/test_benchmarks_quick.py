@@ -528,6 +528,18 @@ def test_report_lists_unrendered_results_but_never_a_quick_run(tmp_path):
     assert "pusht_expert_quick" not in section
 
 
+def test_report_does_not_pass_the_collectors_threads_and_load_off_as_the_runs():
+    from benchmarks.report import _machine
+
+    machine = {"cpu": "Some CPU", "cores": 2, "torch_threads": 2, "load_average_1min": 0.11}
+
+    trained = _machine({"machine": machine, "args": {"collect_only": False}})
+    assert trained == "Some CPU, 2 cores, torch threads 2, load 0.11"
+    collected = _machine({"machine": machine, "args": {"collect_only": True}})
+    assert collected.startswith("Some CPU, 2 cores (where the runs were collected")
+    assert "threads 2" not in collected and "0.11" not in collected
+
+
 def test_open_loop_error_reads_each_runs_checkpoint_on_the_same_windows(tmp_path):
     # Two tiny runs of the point-mass double laid out as bench_success lays them out; the benchmark
     # scores both on the same demonstration windows, and DDPM runs also under DDIM-16.
