@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import statistics
 import time
 from collections.abc import Callable, Mapping
@@ -18,34 +17,9 @@ from typing import Any
 
 import torch
 
+from l1flow_rl.workspace.machine import machine_info
+
 __all__ = ["format_table", "interleaved", "machine_info", "save_results", "timed"]
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def machine_info(device: torch.device | str = "cpu") -> dict[str, Any]:
-    """CPU model, cores, torch threads, load average now, GPU (when one is used), library versions."""
-    device = torch.device(device)
-    info: dict[str, Any] = {
-        "cpu": _cpu_model(),
-        "cores": os.cpu_count(),
-        "torch_threads": torch.get_num_threads(),
-        # other processes' load: above the core count, wall time exceeds CPU time
-        "load_average_1min": round(os.getloadavg()[0], 2),
-        "torch": torch.__version__,
-        "device": str(device),
-    }
-    if device.type == "cuda":
-        info["gpu"] = torch.cuda.get_device_name(device)
-    return info
 
 
 def timed(fn: Callable[[], object], device: torch.device) -> tuple[float, float]:

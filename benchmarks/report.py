@@ -44,6 +44,27 @@ def _table(header: list[str], rows: list[list[Any]]) -> str:
     return "\n".join(lines)
 
 
+def _runs_machines(d: dict) -> str | None:
+    """The machines a collected success file's runs recorded as they ended (None: none recorded)."""
+    seeds = [
+        r
+        for by_policy in (d.get("tasks") or {}).values()
+        for entry in by_policy.values()
+        for r in entry.get("per_seed", [])
+    ]
+    machines = [r["machine"] for r in seeds if isinstance(r.get("machine"), dict)]
+    if not machines:
+        return None
+    kinds = sorted({f"{m.get('cpu', '?')}, torch threads {m.get('torch_threads')}" for m in machines})
+    loads = [m["load_average_1min"] for m in machines if "load_average_1min" in m]
+    text = "; ".join(kinds)
+    if loads:
+        text += f", load {min(loads)}-{max(loads)} as they ended"
+    if len(machines) < len(seeds):
+        text += f" ({len(machines)} of {len(seeds)} seed records carry it)"
+    return text
+
+
 def _machine(d: dict) -> str:
     m = d.get("machine") or d.get("machine_at_start")
     if m is None and "cpu_count" in d:
@@ -51,10 +72,11 @@ def _machine(d: dict) -> str:
         return f"{d['cpu_count']} cores" + (f", load {load[0]:.2f}" if load else "")
     if isinstance(m, dict) and (d.get("args") or {}).get("collect_only"):
         # the collecting process's threads and load say nothing of the runs, which trained earlier
-        return (
-            f"{m.get('cpu', '?')}, {m.get('cores')} cores (where the runs were collected; they trained in "
-            "earlier invocations, whose thread counts and load this file does not hold)"
-        )
+        where = f"{m.get('cpu', '?')}, {m.get('cores')} cores (where the runs were collected"
+        runs = _runs_machines(d)
+        if runs is None:
+            return f"{where}; they trained earlier, and this file holds none of their thread counts or load)"
+        return f"{where}); the runs: {runs}"
     if isinstance(m, dict):
         parts = [m.get("cpu", "?"), f"{m.get('cores')} cores", f"torch threads {m.get('torch_threads')}"]
         if "load_average_1min" in m:

@@ -295,10 +295,11 @@ def run_budget(run: Run) -> dict[str, Any]:
     invocations that resumed it. ``seconds_since_step`` > 0: resumed from a checkpoint older than
     those totals, so the seconds count from that step only (summaries written before the field
     existed lack it and counted their last invocation only). ``cpu_seconds_scope`` "process tree": the
-    CPU seconds include simulator workers; without it they missed forkserver-started workers."""
+    CPU seconds include simulator workers; without it they missed forkserver-started workers.
+    ``machine``: CPU model, torch threads and load as the run ended (None before runs recorded it)."""
     path = run.run_dir / "summary.json"
     summary = json.loads(path.read_text()) if path.is_file() else {}
-    keys = ("steps", "wall_seconds", "cpu_seconds", "seconds_since_step", "cpu_seconds_scope")
+    keys = ("steps", "wall_seconds", "cpu_seconds", "seconds_since_step", "cpu_seconds_scope", "machine")
     return {k: summary.get(k) for k in keys}
 
 

@@ -288,6 +288,10 @@ def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
     assert budget["steps"] == 4 and budget["cpu_seconds"] > 0 and budget["wall_seconds"] > 0
     assert budget["seconds_since_step"] == 0  # the seconds cover the whole run
     assert budget["cpu_seconds_scope"] == "process tree"  # simulator workers included
+    # each run records the machine as it ran: the sweep's share of the cores as its torch threads
+    from benchmarks.sweep import _threads
+
+    assert budget["machine"]["torch_threads"] == _threads(2) and budget["machine"]["device"] == "cpu"
     assert block["ddpm"]["per_seed"][0]["nfe_per_chunk"] == 100.0  # tested under its own sampler
     assert block["ddpm"]["validation_sampler"] == "ddim16"
     assert block["regression"]["validation_sampler"] is None
@@ -538,6 +542,13 @@ def test_report_does_not_pass_the_collectors_threads_and_load_off_as_the_runs():
     collected = _machine({"machine": machine, "args": {"collect_only": True}})
     assert collected.startswith("Some CPU, 2 cores (where the runs were collected")
     assert "threads 2" not in collected and "0.11" not in collected
+    # runs that recorded their machine are described by it, and the rest are counted
+    seed = {"machine": {"cpu": "Run CPU", "torch_threads": 1, "load_average_1min": 2.5}}
+    tasks = {"t": {"l1flow": {"per_seed": [seed, {**seed, "machine": None}]}}}
+    collected = _machine({"machine": machine, "args": {"collect_only": True}, "tasks": tasks})
+    assert collected.endswith(
+        "the runs: Run CPU, torch threads 1, load 2.5-2.5 as they ended (1 of 2 seed records carry it)"
+    )
 
 
 def test_open_loop_error_reads_each_runs_checkpoint_on_the_same_windows(tmp_path):

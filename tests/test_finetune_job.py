@@ -165,6 +165,7 @@ def test_resume_matches_an_uninterrupted_run(tmp_path, data_dir, bc_checkpoint, 
     # ended before the crash, so the resumed invocation adds nothing to it.
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["seconds_since_step"] == 0
+    assert summary["machine"]["device"] == "cpu" and summary["machine"]["torch_threads"] >= 1
     assert summary["offline_seconds"] == pytest.approx(saved["elapsed"]["offline"], abs=0.06)
     for phase in ("online", "cpu", "wall"):
         assert summary[f"{phase}_seconds"] > round(saved["elapsed"][phase], 1), phase

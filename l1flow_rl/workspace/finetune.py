@@ -30,6 +30,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from l1flow_rl.workspace.checkpoint import get_rng_state, load_checkpoint, save_checkpoint, set_rng_state
+from l1flow_rl.workspace.machine import machine_info
 
 __all__ = ["run_finetune"]
 
@@ -387,6 +388,7 @@ def run_finetune(cfg: DictConfig) -> int:
             save_checkpoint(ckpt_dir / "best.pt", checkpoint_state(None))
     save(dump_online=False)  # the final state (history, evaluations); the buffer copy stays
     summary.update(clock.summary())  # offline/online/wall/cpu seconds over every invocation of the run
+    summary["machine"] = machine_info(device)  # threads and load as this invocation ended
     (run_dir / "history.json").write_text(json.dumps({"history": history, "evals": evals, "rounds": rounds}))
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     _plot(history, evals, rounds, run_dir)

@@ -39,6 +39,7 @@ from l1flow_rl.workspace.distributed import (
 )
 from l1flow_rl.workspace.evaluator import PeriodicEvaluator
 from l1flow_rl.workspace.logging import make_logger
+from l1flow_rl.workspace.machine import machine_info
 from l1flow_rl.workspace.report import format_summary, save_history, save_plots
 from l1flow_rl.workspace.run_clock import RunClock
 from l1flow_rl.workspace.trainer import Trainer
@@ -290,6 +291,7 @@ def run_train(cfg: DictConfig) -> int:
             )
         # Seconds over every invocation of the run; CPU is the budget when runs share the machine.
         summary.update(clock.summary())  # seconds_since_step 0: the figures cover the whole run
+        summary["machine"] = machine_info(device)  # threads and load as this invocation ended
         save_plots(history, evals, run_dir)
         save_history(history, evals, run_dir)
         (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
