@@ -176,3 +176,10 @@ def test_eval_command_on_a_checkpoint(tmp_path, full_run):
     result = json.loads((out / "eval.json").read_text())
     assert result["episodes"] == 2
     assert set(result) >= {"success_once", "success_at_end"}
+
+
+def test_the_printed_summary_shows_nested_figures_such_as_the_machine_on_one_line():
+    from l1flow_rl.workspace.report import format_summary
+
+    lines = format_summary({"success_once": 0.9, "machine": {"cpu": "X", "torch_threads": 1}}).splitlines()
+    assert lines[1:3] == ["success_once  0.900", "machine       cpu X, torch_threads 1"]

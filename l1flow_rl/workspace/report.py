@@ -69,7 +69,12 @@ def format_summary(rows: Mapping[str, Any]) -> str:
     width = max(len(k) for k in rows)
     lines = ["-" * (width + 24)]
     for key, value in rows.items():
-        shown = f"{value:.3f}" if isinstance(value, float) else str(value)
+        if isinstance(value, float):
+            shown = f"{value:.3f}"
+        elif isinstance(value, Mapping):  # e.g. the machine: its values on one line, keys implied
+            shown = ", ".join(f"{k} {v}" for k, v in value.items())
+        else:
+            shown = str(value)
         lines.append(f"{key:<{width}}  {shown}")
     lines.append(lines[0])
     return "\n".join(lines)
