@@ -2,6 +2,7 @@
 names what is out of date."""
 
 import json
+import re
 
 from benchmarks import bench_latency, report
 from benchmarks.defaults_evidence import evidence_table
@@ -141,3 +142,20 @@ def test_defaults_evidence_reads_its_figures_from_the_saved_files(tmp_path):
         "300 demonstrations, 2 seeds: validation success_once 0.50 at 1,000, 0.75 at 2,000 steps" in rows[1]
     )
     assert rows[1].endswith("| `success_stackcube.json` |")
+
+
+def test_readme_stays_short_its_test_command_is_cis_and_its_snippet_runs(capsys):
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    assert len(readme.splitlines()) <= 300
+    commands = re.findall(r"```bash\n(.*?)\n```", readme, re.S)[:2]
+    assert commands == [
+        "./install.sh && .venv/bin/l1flow-rl train",
+        "./install.sh all && .venv/bin/python -m pytest",
+    ]
+    assert commands[1] in (root / ".ci" / "run").read_text().splitlines()
+    snippet = re.findall(r"```python\n(.*?)```", readme, re.S)[0]
+    exec(compile(snippet, "README.md", "exec"), {})
+    assert "torch.Size([1, 8, 4])" in capsys.readouterr().out
