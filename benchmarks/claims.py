@@ -1,9 +1,9 @@
 """The paper's four claims beside what the saved results measured, one row per claim and setting.
 
-``benchmarks.report`` puts this table at the top of the README's results: a reader sees each claim
-checked without reading every section below it. Every figure comes from a results file, and each
-verdict is a fixed rule over those figures (stated under the table), so a re-run that contradicts
-the paper changes the verdict, not a sentence somebody must remember to edit.
+``benchmarks.report`` puts this table in the README's results summary and atop ``RESULTS.md``: a
+reader sees each claim checked without reading every section below it. Every figure comes from a
+results file, and each verdict is a fixed rule over those figures (stated under the table), so a
+re-run that contradicts the paper changes the verdict, not a sentence somebody must remember to edit.
 """
 
 from __future__ import annotations
@@ -221,6 +221,7 @@ def claims_table(results: Path) -> str | None:
         "dominates its ratio stays near 8; the image encoder runs once per chunk under every sampler, "
         "which narrows every ratio). Collapse: regression hits fewer modes or puts more mass off "
         "every mode than L1 Flow (toy), or lands between PushT's two routes more often, with disjoint "
-        "95 % intervals. The sections below give every figure these come from."
+        "95 % intervals. `benchmarks/RESULTS.md` gives every figure these come from, one section per "
+        "results file."
     )
     return "\n".join(lines) + "\n\n" + rules

@@ -1,11 +1,14 @@
-"""The README's results section, built from the JSON the benchmark scripts saved: no number in it is
-typed by hand.
+"""``benchmarks/RESULTS.md`` and the README's results summary, built from the JSON the benchmark
+scripts saved: no number in either is typed by hand.
 
-    .venv/bin/python -m benchmarks.report            # rewrite the section between the markers
-    .venv/bin/python -m benchmarks.report --check    # exit 1 if the README is out of date
+    .venv/bin/python -m benchmarks.report            # rewrite RESULTS.md and the README's summary
+    .venv/bin/python -m benchmarks.report --check    # exit 1, naming each stale section, if either differs
 
-Each results file has a renderer keyed by its name; a file without one is listed by name, so
-nothing saved is silently left out. Quick-mode files (``"quick": true``) are never reported.
+RESULTS.md holds every file's section, grouped by what it measures, each under a heading that names
+its source file; the README holds only the summary between its markers (the claims table and the
+overview figure) and links to RESULTS.md. Each results file has a renderer keyed by its name; a file
+without one is listed by name, so nothing saved is silently left out. Quick-mode files
+(``"quick": true``) are never reported.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import sys
 from collections.abc import Callable
@@ -22,10 +26,12 @@ from typing import Any
 from benchmarks.sweep import convergence_steps
 from l1flow_rl.workspace.run_clock import CPU_SCOPE
 
-__all__ = ["build_section", "main"]
+__all__ = ["build_results", "build_summary", "main", "stale_sections"]
 
 BEGIN, END = "<!-- results:begin (python -m benchmarks.report) -->", "<!-- results:end -->"
 RESULTS = Path("benchmarks/results")
+#: the generated document of every results file's section
+RESULTS_DOC = Path("benchmarks/RESULTS.md")
 #: the figure of every success file's curves, which the report draws from them beside its table
 OVERVIEW_PLOT = "success_overview.png"
 
@@ -515,115 +521,194 @@ def render_flow_q(d: dict) -> str:
     return _table(header, rows) + "\n\n" + note
 
 
-#: file-name pattern -> (section title, renderer)
-RENDERERS: list[tuple[str, str, Callable[[dict], str]]] = [
-    (r"main_job\.json", "Main job", render_main_job),
-    (r"latency\.json", "Inference latency and training step (state network)", render_latency),
-    (r"latency_image\.json", "Inference latency (image network)", render_latency),
-    (
-        r"latency_samplers_cuda\.json",
-        "Inference latency on CUDA, every sampler (state network)",
-        render_latency,
-    ),
-    (
-        r"latency_samplers_cuda_image\.json",
-        "Inference latency on CUDA, every sampler (image network)",
-        render_latency,
-    ),
-    (r"latency_cuda.*\.json", "CUDA latency at batch 1: eager, CUDA graph, compile", render_latency_cuda),
-    (r"success_.*\.json", "Success and convergence", render_success),
-    (r"open_loop_.*\.json", "Open-loop action error of the trained runs", render_open_loop),
-    (r"ablations_.*\.json", "Ablations", render_ablations),
-    (r"flow_q_.*\.json", "Flow-Q fine-tuning against continued BC", render_flow_q),
-    (r"multimodal\.json", "Multi-modality (toy)", render_multimodal),
-    (r"pusht_modes\.json", "Multi-modality on PushT: which way around the T", render_pusht_modes),
-    (r"env_throughput_.*\.json", "Environment throughput", render_env_throughput),
-    (r"sampler\.json", "Replay-buffer sampling", render_sampler),
-    (r"(pusht|robosuite)_experts?\.json", "Scripted experts", render_experts),
-    (
-        r"pusht_env\.json|robosuite_throughput_.*\.json",
-        "Simulator adapters against the raw simulator",
-        render_sim_throughput,
-    ),
-    (
-        r"image_latency\.json",
-        "Image policy: per-chunk latency against encoder + 2 UNet forwards",
-        render_image_latency,
-    ),
-    (r"image_train\.json", "Image policy: training from the memory-mapped buffer", render_image_train),
-    (r"train_throughput_.*\.json", "Training step against the bare update", render_train_throughput),
-    (r"training_.*\.json", "Trained policies (default budget, one seed)", render_training_runs),
-]
+#: RESULTS.md's groups in order, each a heading and its files' (name pattern, section title, renderer)
+GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
+    "Success, convergence and ablations": [
+        (r"main_job\.json", "Main job", render_main_job),
+        (r"success_.*\.json", "Success and convergence", render_success),
+        (r"training_.*\.json", "Trained policies (default budget, one seed)", render_training_runs),
+        (r"open_loop_.*\.json", "Open-loop action error of the trained runs", render_open_loop),
+        (r"ablations_.*\.json", "Ablations", render_ablations),
+    ],
+    "Multi-modality": [
+        (r"multimodal\.json", "Multi-modality (toy)", render_multimodal),
+        (r"pusht_modes\.json", "Multi-modality on PushT: which way around the T", render_pusht_modes),
+    ],
+    "Speed: inference and training": [
+        (r"latency\.json", "Inference latency and training step (state network)", render_latency),
+        (r"latency_image\.json", "Inference latency (image network)", render_latency),
+        (r"latency_samplers_cuda\.json", "CUDA latency, every sampler (state network)", render_latency),
+        (r"latency_samplers_cuda_image\.json", "CUDA latency, every sampler (image network)", render_latency),
+        (r"latency_cuda.*\.json", "CUDA latency at batch 1: eager, graph, compile", render_latency_cuda),
+        (r"image_latency\.json", "Image policy: latency against its floor", render_image_latency),
+        (r"image_train\.json", "Image policy: training from the memory-mapped buffer", render_image_train),
+        (r"train_throughput_.*\.json", "Training step against the bare update", render_train_throughput),
+    ],
+    "Fine-tuning": [(r"flow_q_.*\.json", "Flow-Q fine-tuning against continued BC", render_flow_q)],
+    "Simulators, experts and data": [
+        (r"env_throughput_.*\.json", "Environment throughput", render_env_throughput),
+        (r"sampler\.json", "Replay-buffer sampling", render_sampler),
+        (r"(pusht|robosuite)_experts?\.json", "Scripted experts", render_experts),
+        (
+            r"pusht_env\.json|robosuite_throughput_.*\.json",
+            "Adapters against the raw simulator",
+            render_sim_throughput,
+        ),
+    ],
+}
 
 
-def _quick(path: Path) -> bool:
+def _load(path: Path) -> Any:
+    return json.loads(path.read_text())
+
+
+def _quick(data: Any) -> bool:
     """A --quick run's file: it checked a script, it measured nothing, so no section lists it."""
-    data = json.loads(path.read_text())
     return isinstance(data, dict) and bool(data.get("quick"))
 
 
-def build_section(results: Path = RESULTS) -> str:
-    from benchmarks.claims import claims_table
-    from benchmarks.success_overview import overview_table
+def _link(target: Path, doc: Path) -> str:
+    """``target`` as a link from the document ``doc`` (Markdown resolves links from its folder)."""
+    return Path(os.path.relpath(target, doc.parent)).as_posix()
 
-    parts = [BEGIN, ""]
+
+def _file_section(path: Path, data: dict, title: str, render: Callable[[dict], str], doc: Path) -> list[str]:
+    try:
+        body = render(data)
+    except (KeyError, TypeError, ValueError) as err:  # an older layout of the file
+        body = f"Not rendered: an older layout of this file ({err!r}); re-run its script."
+    parts = [f"### {title} (`{path.name}`)", ""]
+    parts += [f"Source: [`{path.name}`]({_link(path, doc)}). Machine: {_machine(data)}.", "", body, ""]
+    plot = path.with_suffix(".png")
+    if plot.is_file():  # the script's own figure beside its table
+        parts += [f"![{title}]({_link(plot, doc)})", ""]
+    return parts
+
+
+def _summary_parts(results: Path, doc: Path, level: str, overview_table: bool) -> list[str]:
+    """The claims table, the overview table when asked for, and the overview figure."""
+    from benchmarks import success_overview
+    from benchmarks.claims import claims_table
+
+    parts = []
     claims = claims_table(results)
     if claims:  # the digest first: each claim, its figures and a rule's verdict
-        parts += ["#### The paper's four claims, as measured here", "", claims, ""]
-    overview = overview_table(results)
+        parts += [f"{level} The paper's four claims, as measured here", "", claims, ""]
+    overview = success_overview.overview_table(results) if overview_table else None
     if overview:  # every task's methods side by side, before each file's own section
-        parts += ["#### Success across tasks (the paper's Table 2 and Figure 4)", "", overview, ""]
-        if (results / OVERVIEW_PLOT).is_file():
-            parts += [f"![Success across tasks]({(results / OVERVIEW_PLOT).as_posix()})", ""]
-    files = sorted(results.glob("*.json"))
-    for pattern, title, render in RENDERERS:
-        for path in files:
-            if not re.fullmatch(pattern, path.name):
-                continue
-            data = json.loads(path.read_text())
-            if isinstance(data, dict) and data.get("quick"):
-                continue
-            try:
-                body = render(data)
-            except (KeyError, TypeError, ValueError) as err:  # an older layout of the file
-                body = f"Not rendered: an older layout of this file ({err!r}); re-run its script."
-            parts += [f"#### {title} (`{path.as_posix()}`)", "", f"Machine: {_machine(data)}.", ""]
-            parts += [body, ""]
-            plot = path.with_suffix(".png")
-            if plot.is_file():  # the script's own figure beside its table
-                parts += [f"![{title}]({plot.as_posix()})", ""]
-    rendered = {p.name for p in files for pat, _, _ in RENDERERS if re.fullmatch(pat, p.name)}
-    unrendered = [p.name for p in files if p.name not in rendered and not _quick(p)]
-    if unrendered:
-        parts += ["Other saved results: " + ", ".join(f"`{n}`" for n in unrendered) + ".", ""]
-    parts.append(END)
+        parts += [f"{level} Success across tasks (the paper's Table 2 and Figure 4)", "", overview, ""]
+    if (results / OVERVIEW_PLOT).is_file():
+        parts += [f"![Success across tasks]({_link(results / OVERVIEW_PLOT, doc)})", ""]
+    return parts
+
+
+def build_summary(results: Path = RESULTS, readme: Path = Path("README.md"), doc: Path = RESULTS_DOC) -> str:
+    """The README's block between the markers: the claims table, the overview figure, a link to
+    RESULTS.md."""
+    parts = [BEGIN, "", *_summary_parts(results, readme, "###", overview_table=False)]
+    parts += [f"Every figure, its source file and its machine: [{doc.name}]({_link(doc, readme)}).", "", END]
     return "\n".join(parts)
+
+
+def build_results(results: Path = RESULTS, doc: Path = RESULTS_DOC) -> str:
+    """The whole of RESULTS.md: the summary, then every results file's section in its group."""
+    from benchmarks.defaults_evidence import evidence_table
+
+    files = [(p, _load(p)) for p in sorted(results.glob("*.json"))]
+    files = [(p, d) for p, d in files if not _quick(d)]
+    sections: dict[str, list[str]] = {group: [] for group in GROUPS}
+    rendered = set()
+    for group, renderers in GROUPS.items():
+        for pattern, title, render in renderers:
+            for path, data in files:
+                if path.name not in rendered and re.fullmatch(pattern, path.name):
+                    rendered.add(path.name)
+                    sections[group] += _file_section(path, data, title, render, doc)
+    heading = "# Results"
+    parts = [
+        heading,
+        "",
+        f"Generated by `python -m benchmarks.report` from the JSON files under `{results.as_posix()}/`: no "
+        "number here is typed by hand, and `python -m benchmarks.report --check` (run in CI) fails, naming "
+        "the section, when this file differs from what those files give. Each section's heading names its "
+        "source file. The scripts that write them: [docs/benchmarks.md](../docs/benchmarks.md).",
+        "",
+        "## Summary",
+        "",
+        *_summary_parts(results, doc, "###", overview_table=True),
+    ]
+    for group, section in sections.items():
+        if section:
+            parts += [f"## {group}", "", *section]
+    evidence = evidence_table(results)
+    if evidence:
+        parts += ["## Defaults and the measurements behind them", "", evidence, ""]
+    unrendered = [p.name for p, _ in files if p.name not in rendered]
+    if unrendered:
+        parts += ["## Other saved results", ""]
+        parts += ["No renderer yet: " + ", ".join(f"`{n}`" for n in unrendered) + ".", ""]
+    return "\n".join(parts).rstrip("\n") + "\n"
+
+
+def _sections(text: str) -> dict[str, str]:
+    """Markdown text by heading ("(top)" before the first): the unit --check names."""
+    found: dict[str, list[str]] = {"(top)": []}
+    current = "(top)"
+    for line in text.splitlines():
+        if line.startswith("#"):
+            current = line.lstrip("#").strip()
+            found.setdefault(current, [])
+        found[current].append(line)
+    return {k: "\n".join(v) for k, v in found.items()}
+
+
+def stale_sections(old: str, new: str) -> list[str]:
+    """Headings whose text differs between ``old`` and ``new``, or that only one of them has."""
+    a, b = _sections(old), _sections(new)
+    names = list(b) + [k for k in a if k not in b]
+    stale = [k for k in names if a.get(k) != b.get(k)]
+    if not stale and old != new:  # same sections, different order
+        stale = ["(the order of the sections)"]
+    return stale
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--readme", default="README.md")
-    parser.add_argument("--results", default=str(RESULTS))
-    parser.add_argument("--check", action="store_true", help="exit 1 when the README's section differs")
+    parser.add_argument("--results", default=str(RESULTS), help="the folder of saved JSON")
+    parser.add_argument("--out", default=str(RESULTS_DOC), help="the generated results document")
+    parser.add_argument(
+        "--check", action="store_true", help="exit 1 when RESULTS.md or the README's summary differs"
+    )
     args = parser.parse_args(argv)
-    readme = Path(args.readme)
+    readme, results, out = Path(args.readme), Path(args.results), Path(args.out)
     text = readme.read_text()
     if BEGIN not in text or END not in text:
-        print(f"{readme}: no results markers ({BEGIN} ... {END}); add them where the section goes")
+        print(f"{readme}: no results markers ({BEGIN} ... {END}); add them where the summary goes")
         return 2
     if not args.check:  # the figure is drawn from the same files; --check only reads
         from benchmarks.success_overview import overview_figure
 
-        overview_figure(Path(args.results), Path(args.results) / OVERVIEW_PLOT)
-    section = build_section(Path(args.results))
-    new = text[: text.index(BEGIN)] + section + text[text.index(END) + len(END) :]
+        overview_figure(results, results / OVERVIEW_PLOT)
+    summary = build_summary(results, readme, out)
+    new_readme = text[: text.index(BEGIN)] + summary + text[text.index(END) + len(END) :]
+    new_doc = build_results(results, out)
     if args.check:
-        if new != text:
-            print(f"{readme}: results section is out of date; run python -m benchmarks.report")
-            return 1
-        return 0
-    readme.write_text(new)
-    print(f"{readme}: results section rebuilt from {args.results}")
+        problems = []
+        if new_readme != text:
+            problems.append(f"{readme}: the results summary between the markers is out of date")
+        if not out.is_file():
+            problems.append(f"{out}: missing")
+        elif stale := stale_sections(out.read_text(), new_doc):
+            problems.append(f"{out}: out of date in " + "; ".join(f"'{s}'" for s in stale))
+        for problem in problems:
+            print(problem)
+        if problems:
+            print("run python -m benchmarks.report to rebuild them from the saved JSON")
+        return 1 if problems else 0
+    readme.write_text(new_readme)
+    out.write_text(new_doc)
+    print(f"{out} and the summary in {readme} rebuilt from {results}")
     return 0
 
 

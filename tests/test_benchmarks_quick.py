@@ -75,29 +75,6 @@ def test_latency_quick_mode_times_the_image_network_under_every_sampler(tmp_path
     assert "train_step_ms" not in figures  # bench_image_train times the image network's training
 
 
-def test_report_builds_the_readme_section_from_saved_results_only(tmp_path):
-    from benchmarks import report
-
-    results = tmp_path / "results"
-    assert (
-        bench_latency.main(["--quick", "--no-train", "--no-peers", "--out", str(results / "latency.json")])
-        == 0
-    )
-    figures = json.loads((results / "latency.json").read_text())
-    (results / "latency.json").write_text(json.dumps({**figures, "quick": False}))
-    (results / "somebody_new.json").write_text("{}")
-    readme = tmp_path / "README.md"
-    readme.write_text(f"intro\n{report.BEGIN}\nstale\n{report.END}\noutro\n")
-    assert report.main(["--readme", str(readme), "--results", str(results), "--check"]) == 1
-    assert report.main(["--readme", str(readme), "--results", str(results)]) == 0
-    text = readme.read_text()
-    assert text.startswith("intro\n") and text.endswith("outro\n") and "stale" not in text
-    ms = figures["inference"]["batch1"]["ms"]["l1flow_2nfe"]["wall_ms"]
-    assert f"| l1flow_2nfe | 2 | {ms:.3g} |" in text  # the number comes from the file
-    assert "`somebody_new.json`" in text  # a file without a renderer is named, not dropped
-    assert report.main(["--readme", str(readme), "--results", str(results), "--check"]) == 0
-
-
 def test_ablations_table_pairs_each_variant_with_the_default_on_the_same_seed():
     from benchmarks import report
 
@@ -520,16 +497,6 @@ def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
     assert "| maniskill_pushcube | l1flow | 2 | 4 |" in render_training_runs(
         json.loads((tmp_path / "t.json").read_text())
     )
-
-
-def test_report_lists_unrendered_results_but_never_a_quick_run(tmp_path):
-    from benchmarks.report import build_section
-
-    (tmp_path / "something_new.json").write_text(json.dumps({"quick": False, "x": 1}))
-    (tmp_path / "pusht_expert_quick.json").write_text(json.dumps({"quick": True, "seeds": 2}))
-    section = build_section(tmp_path)
-    assert "Other saved results: `something_new.json`." in section
-    assert "pusht_expert_quick" not in section
 
 
 def test_report_does_not_pass_the_collectors_threads_and_load_off_as_the_runs():

@@ -1,0 +1,161 @@
+"""benchmarks.report: RESULTS.md and the README's summary come from the saved JSON only, and --check
+names what is out of date."""
+
+import json
+import re
+
+from benchmarks import bench_latency, report
+from benchmarks.defaults_evidence import evidence_table
+
+
+def _toy(regression_modes: int) -> dict:
+    """A multimodal.json as bench_multimodal saves it: two methods on one two-mode family."""
+
+    def method(nfe, hit, off):
+        return {"nfe": nfe, "modes_hit": hit, "num_modes": 2, "share_neither": off, "balance": 0.5}
+
+    methods = {"l1flow": method(2, 2, 0.01), "regression": method(1, regression_modes, 0.97)}
+    return {
+        "steps": 100,
+        "machine": {"cpu": "Some CPU", "cores": 2, "torch_threads": 1},
+        "families": {"opposite_sines": {"num_modes": 2, "methods": methods}},
+    }
+
+
+def _setup(tmp_path, results_files: dict) -> tuple:
+    results = tmp_path / "benchmarks" / "results"
+    results.mkdir(parents=True)
+    for name, data in results_files.items():
+        (results / name).write_text(json.dumps(data))
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{report.BEGIN}\nstale\n{report.END}\noutro\n")
+    doc = tmp_path / "benchmarks" / "RESULTS.md"
+    argv = ["--readme", str(readme), "--results", str(results), "--out", str(doc)]
+    return results, readme, doc, argv
+
+
+def test_report_writes_results_and_the_readme_summary_from_saved_results_only(tmp_path, capsys):
+    results, readme, doc, argv = _setup(tmp_path, {"somebody_new.json": {}})
+    assert (
+        bench_latency.main(["--quick", "--no-train", "--no-peers", "--out", str(results / "latency.json")])
+        == 0
+    )
+    figures = json.loads((results / "latency.json").read_text())
+    (results / "latency.json").write_text(json.dumps({**figures, "quick": False}))
+    (results / "latency_image.json").write_text(json.dumps(figures))  # a --quick run: never reported
+
+    assert report.main([*argv, "--check"]) == 1
+    out = capsys.readouterr().out
+    assert "results summary between the markers is out of date" in out and f"{doc}: missing" in out
+    assert report.main(argv) == 0
+
+    summary = readme.read_text()
+    assert summary.startswith("intro\n") and summary.endswith("outro\n") and "stale" not in summary
+    ms = figures["inference"]["batch1"]["ms"]["l1flow_2nfe"]["wall_ms"]
+    slowdown = figures["inference"]["batch1"]["slowdown_vs_l1flow"]["ddim16"]
+    # the claims row of the speed claim, its numbers from the file, and a link to the full document
+    assert f"ms per chunk | DDIM-16 {slowdown:.3g}× slower" in summary
+    assert "[RESULTS.md](benchmarks/RESULTS.md)" in summary
+    assert "| l1flow_2nfe |" not in summary  # the file's own tables stay in RESULTS.md
+
+    text = doc.read_text()
+    assert f"| l1flow_2nfe | 2 | {ms:.3g} |" in text  # the number comes from the file
+    assert "### Inference latency and training step (state network) (`latency.json`)" in text
+    assert "Source: [`latency.json`](results/latency.json)" in text  # linked from RESULTS.md's folder
+    assert "`somebody_new.json`" in text  # a file without a renderer is named, not dropped
+    assert "latency_image" not in text
+    assert report.main([*argv, "--check"]) == 0
+
+
+def test_check_names_each_out_of_date_section(tmp_path, capsys):
+    results, readme, doc, argv = _setup(tmp_path, {"multimodal.json": _toy(regression_modes=0)})
+    assert report.main(argv) == 0
+    assert "| regression | 1 | 0/2 | 0.97 | 0.5 |" in doc.read_text()
+    assert report.main([*argv, "--check"]) == 0
+
+    # a re-run changed the figures: the file's section and the claims (README and RESULTS.md) are stale
+    (results / "multimodal.json").write_text(json.dumps(_toy(regression_modes=2)))
+    capsys.readouterr()
+    assert report.main([*argv, "--check"]) == 1
+    out = capsys.readouterr().out
+    assert f"{readme}: the results summary between the markers is out of date" in out
+    stale = next(line for line in out.splitlines() if line.startswith(f"{doc}: out of date in"))
+    assert "'Multi-modality (toy) (`multimodal.json`)'" in stale
+    assert "'The paper's four claims, as measured here'" in stale
+    assert "Simulators" not in stale and "'Results'" not in stale  # untouched sections are not named
+
+    # a hand edit of RESULTS.md is named too, and rebuilding restores it
+    assert report.main(argv) == 0
+    doc.write_text(
+        doc.read_text().replace("## Multi-modality\n", "## Multi-modality\n\nA hand-typed note.\n")
+    )
+    assert report.main([*argv, "--check"]) == 1
+    assert "out of date in 'Multi-modality'" in capsys.readouterr().out
+    assert report.main(argv) == 0 and report.main([*argv, "--check"]) == 0
+
+
+def test_stale_sections_names_added_removed_and_reordered_sections():
+    old = "# A\nx\n## B\ny\n## C\nz\n"
+    assert report.stale_sections(old, old) == []
+    assert report.stale_sections(old, "# A\nx\n## B\nchanged\n## C\nz\n") == ["B"]
+    assert report.stale_sections(old, "# A\nx\n## C\nz\n") == ["B"]  # removed
+    assert report.stale_sections(old, old + "## D\nw\n") == ["D"]  # added
+    assert report.stale_sections(old, "# A\nx\n## C\nz\n## B\ny\n") == ["(the order of the sections)"]
+
+
+def test_readme_without_markers_is_refused(tmp_path, capsys):
+    _, readme, _, argv = _setup(tmp_path, {})
+    readme.write_text("no markers\n")
+    assert report.main(argv) == 2
+    assert "no results markers" in capsys.readouterr().out
+    assert readme.read_text() == "no markers\n"
+
+
+def test_defaults_evidence_reads_its_figures_from_the_saved_files(tmp_path):
+    assert evidence_table(tmp_path) is None  # nothing saved, no table
+    main_job = {
+        "steps": 2500,
+        "eval_episodes": 50,
+        "wall_seconds": 480.4,
+        "wall_over_budget": 480.4 / 900,
+        "budget_seconds": 900,
+        "success_once": 0.84,
+        "success_once_ci95": [0.71, 0.92],
+    }
+    (tmp_path / "main_job.json").write_text(json.dumps(main_job))
+    curve = [[1000, 0.4], [2000, 0.8]]
+    stats = {"mean": 0.75, "n": 2}
+    block = {"success_once": stats, "per_seed": [], "curves": [curve, [[1000, 0.6], [2000, 0.7]]]}
+    success = {"args": {"demos": 300, "steps": 2000}, "tasks": {"maniskill_stackcube": {"l1flow": block}}}
+    (tmp_path / "success_stackcube.json").write_text(json.dumps(success))
+    (tmp_path / "success_pusht.json").write_text(json.dumps({"quick": True}))  # a --quick file: no row
+    table = evidence_table(tmp_path)
+    rows = table.splitlines()[2:]
+    assert len(rows) == 2
+    assert (
+        "2,500 training steps and a 50-episode test evaluation in 480 s (0.53 of the 15-minute budget)"
+        in rows[0]
+    )
+    assert "success_once 0.84 [0.71, 0.92] | `main_job.json` |" in rows[0]
+    # the curve is the mean over seeds at each validation step
+    assert (
+        "300 demonstrations, 2 seeds: validation success_once 0.50 at 1,000, 0.75 at 2,000 steps" in rows[1]
+    )
+    assert rows[1].endswith("| `success_stackcube.json` |")
+
+
+def test_readme_stays_short_its_test_command_is_cis_and_its_snippet_runs(capsys):
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    assert len(readme.splitlines()) <= 300
+    commands = re.findall(r"```bash\n(.*?)\n```", readme, re.S)[:2]
+    assert commands == [
+        "./install.sh && .venv/bin/l1flow-rl train",
+        "./install.sh all && .venv/bin/python -m pytest",
+    ]
+    assert commands[1] in (root / ".ci" / "run").read_text().splitlines()
+    snippet = re.findall(r"```python\n(.*?)```", readme, re.S)[0]
+    exec(compile(snippet, "README.md", "exec"), {})
+    assert "torch.Size([1, 8, 4])" in capsys.readouterr().out
