@@ -14,8 +14,8 @@ from tensordict import TensorDict
 
 from l1flow_rl import L1FlowActor, L1FlowLoss
 from l1flow_rl.cli import compose_config
-from l1flow_rl.errors import RunDirectoryError
-from l1flow_rl.workspace.checkpoint import ResumeMismatchError, load_checkpoint
+from l1flow_rl.errors import RunDirectoryError, RunDivergedError
+from l1flow_rl.workspace.checkpoint import ResumeMismatchError, first_non_finite, load_checkpoint
 from l1flow_rl.workspace.harness import Run
 
 STEPS, EVERY = 12, 4
@@ -32,7 +32,7 @@ def _load_weights(path) -> L1FlowActor:
     return actor.eval()
 
 
-def run_distill(cfg, crash_at: int | None = None) -> Run:
+def run_distill(cfg, crash_at: int | None = None, nan_at: int | None = None) -> Run:
     """The whole job: its model, its loop, its state; everything else is the harness's."""
     device = torch.device("cpu")
     with Run(cfg, job="distill", device=device, log_every=2, checkpoint_every=EVERY, eval_every=EVERY) as run:
@@ -57,6 +57,8 @@ def run_distill(cfg, crash_at: int | None = None) -> Run:
             obs = torch.rand(16, 2, OBS_DIM) * 2 - 1  # the global RNG: the harness restores it
             chunk = expert_action(obs[:, -1]).unsqueeze(1).expand(16, 8, 2)
             loss = loss_fn(TensorDict({"observation": obs, "action_chunk": chunk}, batch_size=[16]))
+            if step == nan_at:  # a term turns NaN (its gradient too): the weights follow
+                loss["loss_l1flow"] = loss["loss_l1flow"] * float("nan")
             optim.zero_grad()
             loss["loss_l1flow"].backward()
             optim.step()
@@ -114,3 +116,15 @@ def test_a_minimal_job_resumes_where_an_uninterrupted_run_ends(tmp_path, straigh
     assert [k for k in whole["model"] if not torch.equal(whole["model"][k], resumed["model"][k])] == []
     assert resumed["history"] == whole["history"]
     assert [e["success_once"] for e in resumed["evals"]] == [e["success_once"] for e in whole["evals"]]
+
+
+def test_a_nan_stops_the_job_at_the_next_read_and_never_reaches_a_checkpoint(tmp_path):
+    run_dir = tmp_path / "run"
+    # Step 7's loss is NaN: metrics are read at step 8 (log_every=2), after validation (step 4)
+    # wrote best.pt and the cadence wrote latest.pt.
+    with pytest.raises(RunDivergedError, match=r"^distill diverged: at step 8 loss=nan") as info:
+        run_distill(_cfg(run_dir), nan_at=6)
+    assert f"{run_dir / 'checkpoints' / 'latest.pt'}, is from step 4 and finite" in str(info.value)
+    for name in ("latest.pt", "best.pt"):
+        state = load_checkpoint(run_dir / "checkpoints" / name)
+        assert state["step"] == 4 and first_non_finite(state) is None, name

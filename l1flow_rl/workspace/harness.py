@@ -326,6 +326,7 @@ class Run:
             else:  # a checkpoint or an evaluation is due: its metrics are checked first
                 self._read(step, metrics)
             if validate:
+                self._check_state(self.state())  # NaN weights would fail in the simulator instead
                 self._validate(actor, step)
             if save:
                 self._save(self.latest)
@@ -338,17 +339,25 @@ class Run:
         bad = [k for k, v in values.items() if not math.isfinite(v)]
         if bad:
             bad.sort(key=lambda k: (not k.startswith("loss_"), k))  # the terms first: they name the cause
-            shown = ", ".join(f"{k}={values[k]}" for k in bad)
-            kept = (
-                f"the last checkpoint, {self.latest}, is from step {self._saved_step} and finite"
-                if self._saved_step is not None
-                else "no checkpoint was written"
-            )
-            raise RunDivergedError(
-                f"{self.job} diverged: at step {step} {shown} (metrics are read every {self.log_every} "
-                f"steps and before each checkpoint); {kept}. Lower the learning rate, or clip gradients"
-            )
+            self._diverged(step, ", ".join(f"{k}={values[k]}" for k in bad))
         return values
+
+    def _check_state(self, state: Mapping[str, Any]) -> None:
+        """Raise unless every float tensor of ``state`` is finite (before it is saved or evaluated)."""
+        bad = first_non_finite(state)
+        if bad is not None:
+            self._diverged(self.step, f"the weights or optimiser entry {bad} is not finite")
+
+    def _diverged(self, step: int, what: str) -> None:
+        kept = (
+            f"the last checkpoint, {self.latest}, is from step {self._saved_step} and finite"
+            if self._saved_step is not None
+            else "no checkpoint was written"
+        )
+        raise RunDivergedError(
+            f"{self.job} diverged: at step {step} {what} (checked every {self.log_every} steps and before "
+            f"each checkpoint or evaluation); {kept}. Lower the learning rate, or clip gradients"
+        )
 
     def log(self, step: int, metrics: Mapping[str, torch.Tensor | float], prefix: str = "train") -> None:
         """Read ``metrics`` to the host, check them, keep ``history_keys`` and log them all under
@@ -390,13 +399,7 @@ class Run:
 
     def _save(self, path: Path) -> None:
         state = self.state()
-        bad = first_non_finite(state)
-        if bad is not None:
-            raise RunDivergedError(
-                f"{self.job} diverged: at step {self.step} the checkpoint entry {bad} is not finite, so "
-                f"{path.name} was not written; the last checkpoint on disk is from step {self._saved_step}. "
-                "Lower the learning rate, or clip gradients"
-            )
+        self._check_state(state)
         save_checkpoint(path, state)
         if path == self.latest:
             self._saved_step = self.step
