@@ -259,13 +259,29 @@ def _usage(command: str | None = None, hydra: Any = None, overrides: Sequence[st
     return "\n".join(lines)
 
 
+def _one_line(err: BaseException) -> str:
+    """hydra's and OmegaConf's message on one line: its sentences, a list after a colon joined by
+    commas, then the key it names; their lines of context (types, search path) are dropped."""
+    lines = [line.strip() for line in str(err).split("Config search path")[0].splitlines() if line.strip()]
+    keys = [line.split(":", 1)[1].strip() for line in lines if line.startswith("full_key:")]
+    text, listing = "", False
+    for line in lines:
+        if line.startswith(("full_key:", "reference_type=", "object_type=")):
+            continue
+        item = listing and " " not in line
+        text += line if not text else (", " if item and not text.endswith(":") else " ") + line
+        listing = line.endswith(":") or item
+    return f"{text} (key {keys[0]})" if keys and keys[0] and keys[0] not in text else text
+
+
 def _invalid(command: str, err: Exception) -> int:
     if _debug():
         raise err
-    cause = (
-        f"\n  cause: {err.__cause__}" if err.__cause__ and not isinstance(err, ConfigValidationError) else ""
-    )
-    print(f"l1flow-rl {command}: invalid config: {err}{cause}", file=sys.stderr)
+    if isinstance(err, ConfigValidationError):  # a list of problems, one a line, by design
+        print(f"l1flow-rl {command}: invalid config: {err}", file=sys.stderr)
+        return 2
+    cause = f": {_one_line(err.__cause__)}" if err.__cause__ else ""
+    print(f"l1flow-rl {command}: invalid config: {_one_line(err)}{cause}", file=sys.stderr)
     return 2
 
 
