@@ -342,8 +342,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         return _user_error(command, err)
     except RunPreempted as stop:
-        resume = getattr(stop, "resume_command", None) or "the same command plus resume=true"
-        print(f"l1flow-rl {command}: {stop}\n  resume with: {resume}", file=sys.stderr)
+        if int(os.environ.get("RANK", "0")) == 0:  # under torchrun, one message for the run
+            print(f"l1flow-rl {command}: {stop}", file=sys.stderr)
         return stop.exit_code
     finally:
         GlobalHydra.instance().clear()

@@ -44,14 +44,18 @@ class RunPreempted(BaseException):
     """A stop signal arrived; the run wrote a checkpoint at ``step`` and can be resumed.
 
     A ``BaseException``, like ``KeyboardInterrupt``: a sweep stops with it instead of starting its
-    next job in a process that is about to be killed. ``exit_code`` is the shell's for the signal.
+    next job in a process that is about to be killed. ``exit_code`` is the shell's for the signal;
+    ``resume_command``, when the CLI fills it in, is the exact command that continues the run.
     """
 
     def __init__(self, signum: int, step: int, run_dir: Path, checkpoint: Path | None) -> None:
+        super().__init__(signum, step, run_dir, checkpoint)
         self.signum, self.step, self.run_dir, self.checkpoint = signum, step, Path(run_dir), checkpoint
         self.exit_code = 128 + signum
-        saved = f"checkpoint {checkpoint} holds it" if checkpoint else "nothing to save before step 1"
-        super().__init__(
-            f"stopped by {signal.Signals(signum).name} at step {step}; {saved}. Resume with the same "
-            f"command plus resume=true run_dir={self.run_dir}"
-        )
+        self.resume_command: str | None = None
+
+    def __str__(self) -> str:
+        saved = f"checkpoint {self.checkpoint} holds it" if self.checkpoint else "no checkpoint was needed"
+        resume = self.resume_command or f"the same command plus resume=true run_dir={self.run_dir}"
+        name = signal.Signals(self.signum).name
+        return f"stopped by {name} at step {self.step}; {saved}. Resume with: {resume}"

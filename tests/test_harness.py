@@ -128,3 +128,14 @@ def test_a_nan_stops_the_job_at_the_next_read_and_never_reaches_a_checkpoint(tmp
     for name in ("latest.pt", "best.pt"):
         state = load_checkpoint(run_dir / "checkpoints" / name)
         assert state["step"] == 4 and first_non_finite(state) is None, name
+
+
+@pytest.mark.parametrize(
+    "name", ["l1flow_rl.errors", "l1flow_rl.workspace.run_lock", "l1flow_rl.workspace.checkpoint"]
+)
+def test_docstring_examples_run(name):
+    import doctest
+    import importlib
+
+    result = doctest.testmod(importlib.import_module(name), optionflags=doctest.ELLIPSIS)
+    assert result.attempted > 0 and result.failed == 0

@@ -101,7 +101,7 @@ def test_sigterm_checkpoints_and_the_printed_resume_command_ends_where_an_uninte
     assert load_checkpoint(run_dir / "checkpoints" / "latest.pt")["step"] == step  # not the step-20 one
 
     # The exact command the message gives, run as printed.
-    command = shlex.split(re.search(r"resume with: (.*)$", text, re.M).group(1))
+    command = shlex.split(re.search(r"Resume with: (.*)$", text, re.M).group(1))
     assert command[:2] == ["l1flow-rl", "train"] and command[-2:] == ["resume=true", f"run_dir={run_dir}"]
     resumed_log = tmp_path / "resumed.txt"
     assert _start(command[1:], resumed_log).wait(timeout=300) == 0, resumed_log.read_text()[-2000:]

@@ -236,7 +236,8 @@ def check_resumable(
 
     Example:
         >>> saved = {"train": {"steps": 100, "log_every": 10}, "demos": {"num": 5}}
-        >>> check_resumable(saved, {"train": {"steps": 100, "log_every": 50}, "demos": {"num": 5}})
+        >>> asked = {"train": {"steps": 100, "log_every": 50}, "demos": {"num": 5}}
+        >>> check_resumable(saved, asked, may_change=("train.log_every",))  # the job allows it
         >>> try:
         ...     check_resumable(saved, {"train": {"steps": 200, "log_every": 10}, "demos": {"num": 5}})
         ... except ResumeMismatchError as err:

@@ -52,6 +52,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import os
 import random
 import signal
 import threading
@@ -184,10 +185,11 @@ class Run:
                 signal.signal(signum, signal.SIG_DFL)
                 signal.raise_signal(signum)
             self._signal = signum
-            print(
-                f"\n{signal.Signals(signum).name}: {self.job} will checkpoint and stop after this step",
-                flush=True,
-            )
+            # Straight to the descriptor: a handler writing through sys.stderr could re-enter a
+            # write the loop (the progress bar) had begun, which Python refuses.
+            note = f"\n{signal.Signals(signum).name}: {self.job} will checkpoint and stop after this step\n"
+            with contextlib.suppress(OSError):
+                os.write(2, note.encode())
 
         for signum in STOP_SIGNALS:
             previous = signal.signal(signum, stop)
