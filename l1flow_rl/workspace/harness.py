@@ -15,7 +15,7 @@ state, its counters) and ``load(state)``. :class:`Run` does the rest:
   :class:`~l1flow_rl.errors.RunDivergedError`, checked when metrics are read anyway (log,
   evaluation and checkpoint steps), so the loop never waits for the device on other steps;
 - SIGTERM or SIGUSR1 (a cluster's pre-emption): a checkpoint at the current step, then
-  :class:`RunPreempted`, which says how to resume;
+  :class:`~l1flow_rl.errors.RunPreempted`, which says how to resume;
 - validation -> ``best.pt`` -> the test evaluation of the chosen weights (``eval.json``);
 - ``summary.json`` (with the clocks over every invocation and the machine), ``history.json``, plots.
 
@@ -115,6 +115,7 @@ class Run:
         log_every, checkpoint_every, eval_every: cadences of :meth:`step_done`, in the job's step
             unit (0 turns checkpoints or validation during training off).
         history_keys: the metrics kept in ``history.json`` beside ``step`` (all are logged).
+        seed: every RNG's seed (default ``cfg.seed`` + the rank: each rank its own sample stream).
     """
 
     def __init__(
