@@ -150,8 +150,8 @@ def test_resume_matches_an_uninterrupted_run(tmp_path, data_dir, bc_checkpoint, 
 
     with pytest.raises(FileExistsError, match="resume=true"):
         main(args)
-    with pytest.raises(CheckpointMismatchError, match=r"finetune\.alpha"):
-        main([*args, "resume=true", "finetune.alpha=5"])
+    with pytest.raises(CheckpointMismatchError, match=r"finetune\.alpha"):  # --debug: raised, not printed
+        main(["--debug", *args, "resume=true", "finetune.alpha=5"])
     assert main([*args, "resume=true"]) == 0
     resumed = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
     straight = load_checkpoint(finetuned / "checkpoints" / "latest.pt")
@@ -175,6 +175,7 @@ def test_a_checkpoint_of_another_task_is_refused(tmp_path, data_dir, bc_checkpoi
     with pytest.raises(CheckpointMismatchError, match=r"task\.env_id"):
         main(
             [
+                "--debug",  # raised, not printed as one line
                 "finetune",
                 f"checkpoint={bc_checkpoint}",
                 f"data_dir={data_dir}",
