@@ -10,6 +10,7 @@ from tensordict.utils import NestedKey
 from torchrl.envs import CatFrames, Compose, InitTracker, TransformedEnv, UnsqueezeTransform
 
 from l1flow_rl.config import TaskConfig, load_task_config
+from l1flow_rl.device import resolve_device
 
 __all__ = ["history_transforms", "make_env", "resolve_device"]
 
@@ -30,16 +31,6 @@ def history_transforms(entries: Mapping[NestedKey, int], obs_horizon: int) -> Co
         transforms.append(UnsqueezeTransform(dim, in_keys=[key]))
         transforms.append(CatFrames(N=obs_horizon, dim=dim, in_keys=[key]))
     return Compose(*transforms)
-
-
-def resolve_device(device: str | torch.device) -> torch.device:
-    """``"auto"`` -> CUDA when present, else CPU; a CUDA device that is absent is an error."""
-    if str(device) == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    device = torch.device(device)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError(f"device={device} was asked for, but torch sees no CUDA device")
-    return device
 
 
 def make_env(
