@@ -8,6 +8,7 @@ import functools
 from collections.abc import Mapping
 
 import torch
+from l1flow_rl.envs.maniskill.protocol import PROTOCOL as PROTOCOL  # registers eval.protocol=maniskill
 from l1flow_rl.envs.registry import SimulatorSpec, register_simulator
 from tensordict.utils import NestedKey
 from torchrl.envs import EnvBase, ParallelEnv

@@ -11,6 +11,7 @@ import functools
 from collections.abc import Mapping
 
 import torch
+from l1flow_rl.envs.pusht.protocol import PROTOCOL as PROTOCOL  # registers eval.protocol=diffusion_policy
 from l1flow_rl.envs.registry import SimulatorSpec, register_simulator
 from tensordict.utils import NestedKey
 from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
@@ -113,26 +114,3 @@ def __getattr__(name: str):
 
         return PushTEnv
     raise AttributeError(f"module 'l1flow_rl.envs.pusht' has no attribute {name!r}")
-
-
-def _register_protocol() -> None:
-    from l1flow_rl.evaluation.protocols import EvalProtocol, register_protocol
-
-    register_protocol(
-        EvalProtocol(
-            name="diffusion_policy",
-            description=(
-                "Diffusion Policy's PushT evaluation: 50 test seeds from 100000, 300 steps, score (the "
-                "mean of each episode's best clip(coverage / 0.95, 0, 1)) first"
-            ),
-            episodes=50,
-            seed=100000,
-            task_fields=lambda task: {"max_episode_steps": 300},
-            headline="score",
-            simulators=("pusht",),
-        ),
-        replace=True,  # a re-imported module registers its own copy
-    )
-
-
-_register_protocol()
