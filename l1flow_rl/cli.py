@@ -48,7 +48,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
         "run_train",
         "generate missing demos, train, evaluate, checkpoint",
     ),
-    "eval": ("l1flow_rl.evaluation", "run_eval", "evaluate a checkpoint: eval.json (+ video on request)"),
+    "eval": ("l1flow_rl.evaluation.cli", "run_eval", "evaluate a checkpoint: eval.json (+ video on request)"),
     "demos": (
         "l1flow_rl.experts.cli",
         "run_demos",
