@@ -6,6 +6,7 @@ import dataclasses
 from collections.abc import Mapping
 
 import torch
+from l1flow_rl.envs.registry import get_simulator
 from tensordict.utils import NestedKey
 from torchrl.envs import CatFrames, Compose, InitTracker, TransformedEnv, UnsqueezeTransform
 
@@ -71,8 +72,6 @@ def make_env(
         >>> env.reset()["observation"].shape
         torch.Size([1, 2, 35])
     """
-    from l1flow_rl.envs.registry import get_simulator
-
     if num_envs < 1:
         raise ValueError(f"num_envs must be >= 1, got {num_envs}")
     task_fields = {f.name for f in dataclasses.fields(TaskConfig)}
