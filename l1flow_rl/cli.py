@@ -27,9 +27,13 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+from hydra._internal.hydra import Hydra
+from hydra._internal.utils import create_config_search_path, get_args_parser
 from hydra.core.config_store import ConfigStore
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import HydraException
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf, open_dict
@@ -82,9 +86,6 @@ def _store_schema() -> None:
 
 def _create_hydra(command: str, config_dir: str | None = None) -> Any:
     """hydra's application object for ``command``, searching ``configs/`` (and ``config_dir``)."""
-    from hydra._internal.hydra import Hydra
-    from hydra._internal.utils import create_config_search_path
-
     _store_schema()
     search_path = create_config_search_path(str(CONFIG_DIR))
     if config_dir is not None:
@@ -154,9 +155,6 @@ def compose_config(
 
 def _sweep_jobs(overrides: Sequence[str]) -> list[list[str]]:
     """The override list of every job of a sweep, as hydra's basic sweeper expands it."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
     parsed = OverridesParser.create().parse_overrides(list(overrides))
     return [job for batch in BasicSweeper.split_arguments(parsed, None) for job in batch]
 
@@ -228,8 +226,6 @@ def _invalid(command: str, err: Exception) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``l1flow-rl COMMAND ...``; returns the exit code (2: bad command line or config)."""
-    from hydra._internal.utils import get_args_parser
-
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help", "help"):
         hydra = _create_hydra("help")

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from l1flow_rl.data import fit_normalizers
 from l1flow_rl.evaluation.evaluator import sampler_record
 from l1flow_rl.workspace.build import build_actor, build_loss
 from l1flow_rl.workspace.checkpoint import (
@@ -31,6 +32,7 @@ from l1flow_rl.workspace.checkpoint import (
     set_buffer_rng,
     set_rng_state,
 )
+from l1flow_rl.workspace.dataset import load_task_episodes, make_train_buffer, resolve_dataset
 from l1flow_rl.workspace.distributed import (
     init_distributed,
     resolve_device,
@@ -96,9 +98,6 @@ def run_train(cfg: DictConfig) -> int:
     through :func:`run_on_rank0`, so its failure ends every rank with its error and its length
     never trips the process group's timeout.
     """
-    from l1flow_rl.data import fit_normalizers
-    from l1flow_rl.workspace.dataset import load_task_episodes, make_train_buffer, resolve_dataset
-
     rank, world = init_distributed()
     is_main = rank == 0
     device = _device(cfg, world)
