@@ -116,11 +116,11 @@ def raw_processes(task: TaskConfig, workers: int, actions: np.ndarray) -> Steppe
     import functools
 
     from gymnasium.vector import AsyncVectorEnv, AutoresetMode
-    from l1flow_rl.envs.robosuite import _forkserver
+    from l1flow_rl.envs.robosuite.pool import forkserver
 
     env = AsyncVectorEnv(
         [functools.partial(_RawGym, task)] * workers,
-        context=_forkserver(),
+        context=forkserver(),
         autoreset_mode=AutoresetMode.DISABLED,
     )
     env.reset(seed=0)

@@ -6,10 +6,12 @@ import dataclasses
 from collections.abc import Mapping
 
 import torch
+from l1flow_rl.envs.registry import get_simulator
 from tensordict.utils import NestedKey
 from torchrl.envs import CatFrames, Compose, InitTracker, TransformedEnv, UnsqueezeTransform
 
 from l1flow_rl.config import TaskConfig, load_task_config
+from l1flow_rl.device import resolve_device
 
 __all__ = ["history_transforms", "make_env", "resolve_device"]
 
@@ -30,16 +32,6 @@ def history_transforms(entries: Mapping[NestedKey, int], obs_horizon: int) -> Co
         transforms.append(UnsqueezeTransform(dim, in_keys=[key]))
         transforms.append(CatFrames(N=obs_horizon, dim=dim, in_keys=[key]))
     return Compose(*transforms)
-
-
-def resolve_device(device: str | torch.device) -> torch.device:
-    """``"auto"`` -> CUDA when present, else CPU; a CUDA device that is absent is an error."""
-    if str(device) == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    device = torch.device(device)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError(f"device={device} was asked for, but torch sees no CUDA device")
-    return device
 
 
 def make_env(
@@ -80,8 +72,6 @@ def make_env(
         >>> env.reset()["observation"].shape
         torch.Size([1, 2, 35])
     """
-    from l1flow_rl.envs.registry import get_simulator
-
     if num_envs < 1:
         raise ValueError(f"num_envs must be >= 1, got {num_envs}")
     task_fields = {f.name for f in dataclasses.fields(TaskConfig)}

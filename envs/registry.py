@@ -70,9 +70,7 @@ def builtin_simulator_packages() -> list[str]:
     """The packages under ``l1flow_rl.envs`` (``maniskill``, ``robosuite``, ...): each registers a
     simulator when imported. Found on disk, so that a new simulator package needs no list entry
     here; a package elsewhere registers itself on import (``register_simulator`` is public)."""
-    import l1flow_rl.envs as envs
-
-    return sorted(m.name for m in pkgutil.iter_modules(envs.__path__) if m.ispkg)
+    return sorted(m.name for m in pkgutil.iter_modules([str(Path(__file__).parent)]) if m.ispkg)
 
 
 class SimulatorNotInstalledError(ImportError):

@@ -9,6 +9,7 @@ Quick use::
 
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.ema import dp_ema_decay, make_ema
+from l1flow_rl.evaluation import evaluate
 from l1flow_rl.normalizer import Normalizer, NormalizerDict
 from l1flow_rl.objectives import DiffusionLoss, FlowMatchingLoss, FlowQLoss, L1FlowLoss, RegressionLoss
 from l1flow_rl.policy import ChunkPolicy
@@ -27,12 +28,3 @@ __all__ = [
     "evaluate",
     "make_ema",
 ]
-
-
-def __getattr__(name: str):
-    # Lazy: the evaluator pulls in environment code that the core does not need.
-    if name == "evaluate":
-        from l1flow_rl.evaluation import evaluate
-
-        return evaluate
-    raise AttributeError(f"module 'l1flow_rl' has no attribute {name!r}")

@@ -36,16 +36,20 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
+from hydra._internal.hydra import Hydra
+from hydra._internal.utils import create_config_search_path, get_args_parser
 from hydra.core.config_store import ConfigStore
 from hydra.core.global_hydra import GlobalHydra
 from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.errors import HydraException
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from l1flow_rl.config import CONFIG_DIR, AppConfig
-from l1flow_rl.config.overrides import open_dict_overrides
+from l1flow_rl.config.overrides import open_dict_overrides, user_overrides
 from l1flow_rl.config.validate import ConfigValidationError, validate_config
 from l1flow_rl.errors import RunPreempted, UserInputError
 from l1flow_rl.workspace.run_lock import hold_run_dir
@@ -59,7 +63,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
         "run_train",
         "generate missing demos, train, evaluate, checkpoint",
     ),
-    "eval": ("l1flow_rl.evaluation", "run_eval", "evaluate a checkpoint: eval.json (+ video on request)"),
+    "eval": ("l1flow_rl.evaluation.cli", "run_eval", "evaluate a checkpoint: eval.json (+ video on request)"),
     "demos": (
         "l1flow_rl.experts.cli",
         "run_demos",
@@ -93,9 +97,6 @@ def _store_schema() -> None:
 
 def _create_hydra(command: str, config_dir: str | None = None) -> Any:
     """hydra's application object for ``command``, searching ``configs/`` (and ``config_dir``)."""
-    from hydra._internal.hydra import Hydra
-    from hydra._internal.utils import create_config_search_path
-
     _store_schema()
     search_path = create_config_search_path(str(CONFIG_DIR))
     if config_dir is not None:
@@ -165,9 +166,6 @@ def compose_config(
 
 def _sweep_jobs(overrides: Sequence[str]) -> list[list[str]]:
     """The override list of every job of a sweep, as hydra's basic sweeper expands it."""
-    from hydra._internal.core_plugins.basic_sweeper import BasicSweeper
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
     parsed = OverridesParser.create().parse_overrides(list(overrides))
     return [job for batch in BasicSweeper.split_arguments(parsed, None) for job in batch]
 
@@ -194,7 +192,6 @@ def _resume_command(command: str, overrides: Sequence[str], run_dir: Path) -> st
 def _job(command: str, func: Callable[[DictConfig], Any]) -> Callable[[DictConfig], int]:
     """The task function hydra runs: ``run_dir`` becomes the job's output directory; a user's
     error is one line and exit code 2 (a sweep goes on with its next job)."""
-    from l1flow_rl.config.overrides import user_overrides
 
     def task(cfg: DictConfig) -> int:
         out = Path(HydraConfig.get().runtime.output_dir)
@@ -287,8 +284,6 @@ def _invalid(command: str, err: Exception) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``l1flow-rl COMMAND ...``; returns the exit code (2: bad command line or config)."""
-    from hydra._internal.utils import get_args_parser
-
     global _debug_flag
     args = list(sys.argv[1:] if argv is None else argv)
     _debug_flag = "--debug" in args  # tracebacks for every error, as hydra's HYDRA_FULL_ERROR=1

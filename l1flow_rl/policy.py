@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import copy
-import math
 from collections.abc import Mapping
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from tensordict.nn import InteractionType
 from tensordict.nn.probabilistic import interaction_type
 from torch import Tensor, nn
@@ -16,12 +15,9 @@ from l1flow_rl.flow.samplers import ChunkSampler, check_sampler_fits
 from l1flow_rl.networks.encoders import ObservationEncoder
 from l1flow_rl.networks.unet1d import ConditionalUnet1D
 from l1flow_rl.normalizer import Normalizer, NormalizerDict
-from l1flow_rl.value_checks import value_checks_enabled
+from l1flow_rl.observations import STATE_KEY, read_observations
 
 __all__ = ["STATE_KEY", "ChunkPolicy"]
-
-#: A plain tensor observation is treated as this single entry.
-STATE_KEY = "state"
 
 
 class ChunkPolicy(nn.Module):
@@ -114,49 +110,11 @@ class ChunkPolicy(nn.Module):
     def as_obs_dict(self, observation: Tensor | TensorDictBase, key: str = "observation") -> TensorDictBase:
         """Validate an observation (tensor or TensorDict of entries) with batch dims [*B, To, ...]
         and return it as a TensorDict flattened to batch [N, To]. Flat entries are cast to the
-        network's dtype; image entries ([3, H, W] per step) must be uint8 and stay uint8 here."""
-        if isinstance(observation, Tensor):
-            if set(self.encoder.obs_shapes) != {STATE_KEY}:
-                raise TypeError(
-                    f"{key!r} is a tensor, but the encoder expects entries {sorted(self.encoder.obs_shapes)}"
-                )
-            entries: dict[str, Tensor] = {STATE_KEY: observation}
-        elif isinstance(observation, TensorDictBase):
-            entries = {}
-            for k in self.encoder.obs_shapes:
-                if k not in observation:
-                    raise KeyError(
-                        f"observation entry {(key, k)!r} is missing; the encoder expects "
-                        f"{sorted(self.encoder.obs_shapes)}"
-                    )
-                entries[k] = observation.get(k)
-        else:
-            raise TypeError(f"{key!r} must be a Tensor or a TensorDict, got {type(observation).__name__}")
-        batch: tuple[int, ...] | None = None
-        for k, v in entries.items():
-            shape = self.encoder.obs_shapes[k]
-            name = key if isinstance(observation, Tensor) else f"{key}.{k}"
-            nd = len(shape) + 1
-            if v.dim() < nd or tuple(v.shape[-nd:]) != (self.obs_horizon, *shape):
-                raise ValueError(
-                    f"{name!r} must have shape [*B, {self.obs_horizon}, {', '.join(map(str, shape))}] "
-                    f"(obs_horizon, entry shape), got {tuple(v.shape)}"
-                )
-            if len(shape) == 3 and v.dtype != torch.uint8:
-                # images travel as bytes; the encoder makes floats on the policy's own device
-                raise TypeError(f"{name!r} is an image entry [3, H, W] and must be uint8, got {v.dtype}")
-            b = tuple(v.shape[:-nd])
-            if batch is not None and b != batch:
-                raise ValueError(f"{name!r} has batch dims {b}, other observation entries have {batch}")
-            batch = b
-            if v.is_floating_point():
-                if value_checks_enabled() and not torch.isfinite(v).all():
-                    raise ValueError(f"{name!r} contains NaN or Inf")
-                entries[k] = v.to(self.dtype)  # float64 data would otherwise clash with float32 weights
-        assert batch is not None
-        n = math.prod(batch)
-        flat = {k: v.reshape(n, self.obs_horizon, *self.encoder.obs_shapes[k]) for k, v in entries.items()}
-        return TensorDict(flat, batch_size=[n, self.obs_horizon])
+        network's dtype; image entries ([3, H, W] per step) must be uint8 and stay uint8 here
+        (:func:`~l1flow_rl.observations.read_observations`)."""
+        return read_observations(observation, self.encoder.obs_shapes, self.obs_horizon, self.dtype, key=key)[
+            0
+        ]
 
     @property
     def dtype(self) -> torch.dtype:

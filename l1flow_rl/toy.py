@@ -34,6 +34,7 @@ from l1flow_rl.flow.samplers import (
 )
 from l1flow_rl.objectives import FlowMatchingLoss, L1FlowLoss, RegressionLoss
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
+from l1flow_rl.toy_plot import plot_toy
 
 __all__ = [
     "MODE_FAMILIES",
@@ -233,8 +234,6 @@ def run_toy(cfg: DictConfig) -> int:
         import tqdm  # noqa: F401
     except ImportError as err:  # the app extra brings tqdm and matplotlib
         raise ImportError("the toy needs tqdm and matplotlib: pip install 'l1flow-rl[app]'") from err
-    from l1flow_rl.toy_plot import plot_toy
-
     toy = cfg.toy
     unknown = [m for m in toy.methods if m not in TOY_METHODS]
     if unknown or not toy.methods:
@@ -267,6 +266,7 @@ def train_and_evaluate(
     toy: DictConfig, modes: Tensor, *, verbose: bool = True
 ) -> tuple[dict[str, Any], dict[str, tuple[str, Tensor]]]:
     """Train each of ``toy.methods`` on ``modes`` and evaluate every sampler it lists."""
+    # optional dependency (app extra): the progress bar
     from tqdm import tqdm
 
     results: dict[str, dict[str, Any]] = {}

@@ -30,9 +30,11 @@ def plot_toy(
     modes: Tensor, samples: dict[str, tuple[str, Tensor]], results: dict[str, dict[str, Any]], path: Path
 ) -> None:
     """Write the figure: demonstrations, then each evaluation's samples with its mode shares."""
+    # optional dependency (app extra): plots
     import matplotlib
 
     matplotlib.use("Agg")
+    # optional dependency (app extra): pyplot, after the headless backend is chosen
     import matplotlib.pyplot as plt
 
     lim = 1.25 * float(modes.abs().max())

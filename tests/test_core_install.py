@@ -13,46 +13,19 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 HIDE_EXTRAS = textwrap.dedent(
-    """
+    f"""
 import importlib.abc
 import importlib.metadata as md
-import re
 import sys
 
-from packaging.requirements import Requirement
+sys.path.insert(0, {str(Path(__file__).parent)!r})
+from core_install import core_distributions, extra_top_levels, norm as _norm
 
-
-def _norm(name):
-    return re.sub(r"[-_.]+", "-", name).lower()
-
-
-def core_closure(root="l1flow-rl"):
-    seen, todo = set(), [_norm(root)]
-    while todo:
-        name = todo.pop()
-        if name in seen:
-            continue
-        seen.add(name)
-        try:
-            requires = md.distribution(name).requires or []
-        except md.PackageNotFoundError:
-            continue
-        for line in requires:
-            req = Requirement(line)
-            if req.marker is None or req.marker.evaluate({"extra": ""}):
-                todo.append(_norm(req.name))
-    return seen
-
-
-CORE = core_closure()
-HIDDEN = {
-    top
-    for top, dists in md.packages_distributions().items()
-    if not any(_norm(d) in CORE for d in dists)
-}
-
+CORE = core_distributions()
+HIDDEN = extra_top_levels(CORE)
 
 class Hide(importlib.abc.MetaPathFinder):
     def __init__(self, inner):

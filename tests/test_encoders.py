@@ -283,7 +283,7 @@ def test_registry_picks_and_refuses():
     assert isinstance(make_encoder("auto", {"rgb": (3, 64, 64), "state": (5,)}), ImageObservationEncoder)
     enc = make_encoder("resnet18_gn", {"rgb": (3, 64, 64)}, {"feature_dim": 16, "num_keypoints": 8})
     assert enc.feature_dim == 16 and enc.nets["rgb"].pool.num_keypoints == 8
-    with pytest.raises(ValueError, match=r"encodes flat entries only.*'rgb'"):
+    with pytest.raises(ValueError, match=r"reads flat vectors only.*'rgb'"):
         make_encoder("state", {"rgb": (3, 64, 64), "state": (5,)})
     with pytest.raises(ValueError, match="not a registered encoder"):
         make_encoder("vit", {"state": (5,)})

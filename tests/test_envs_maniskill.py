@@ -6,8 +6,9 @@ import torch
 
 pytest.importorskip("mani_skill")
 
-from l1flow_rl.envs import ManiSkillAsyncEnv, make_env
+from l1flow_rl.envs import make_env
 from l1flow_rl.envs.contract import check_env_contract
+from l1flow_rl.envs.maniskill.async_env import ManiSkillAsyncEnv
 from l1flow_rl.envs.per_env import render_frames, seeded_reset, sim_error_messages
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase

@@ -8,15 +8,22 @@ import functools
 from collections.abc import Mapping
 
 import torch
+from l1flow_rl.envs.maniskill.env import INSTALL_HINT, ManiSkillEnv
+from l1flow_rl.envs.maniskill.protocol import PROTOCOL as PROTOCOL  # registers eval.protocol=maniskill
 from l1flow_rl.envs.registry import SimulatorSpec, register_simulator
+from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
 from tensordict.utils import NestedKey
 from torchrl.envs import EnvBase, ParallelEnv
 
 from l1flow_rl.config import TaskConfig
 
-__all__ = ["CPU_BACKENDS", "INSTALL_HINT", "make_maniskill_env", "maniskill_observation_entries"]
-
-INSTALL_HINT = "pip install 'l1flow-rl[maniskill]' (and a Vulkan driver: ./install.sh maniskill)"
+__all__ = [
+    "CPU_BACKENDS",
+    "INSTALL_HINT",
+    "ManiSkillEnv",
+    "make_maniskill_env",
+    "maniskill_observation_entries",
+]
 
 #: make_env's ways of running several physx_cpu envs, one per worker process
 CPU_BACKENDS = ("async", "parallel")
@@ -43,8 +50,6 @@ def make_maniskill_env(
     (``cpu_backend="async"``: gymnasium's ``AsyncVectorEnv`` workers, the faster; ``"parallel"``:
     TorchRL's ``ParallelEnv``). ``reconfigure_each_episode`` (CPU only) rebuilds the scene at each
     reset, so an episode depends on its seed alone."""
-    from l1flow_rl.envs.maniskill.env import ManiSkillEnv
-
     if cpu_backend not in CPU_BACKENDS:
         raise ValueError(f"cpu_backend must be one of {CPU_BACKENDS}, got {cpu_backend!r}")
     env_kwargs = {
@@ -58,12 +63,11 @@ def make_maniskill_env(
     if num_envs == 1:
         return ManiSkillEnv(task, num_envs=1, **env_kwargs)
     # physx_cpu holds one env per process: one unbatched env per worker, batch [num_envs] in here.
+    # optional dependency: the worker envs are gymnasium's AsyncVectorEnv
     from l1flow_rl.envs.maniskill.async_env import ManiSkillAsyncEnv, use_forkserver
 
     if cpu_backend == "async":
         return ManiSkillAsyncEnv(task, num_envs, **env_kwargs)
-    from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
-
     what = f"ManiSkill on the CPU with num_envs={num_envs} ({task.name!r}, cpu_backend='parallel')"
     check_main_guard(what)
     # Workers report their specs themselves, so that this process never builds a simulator.
@@ -91,12 +95,8 @@ SIMULATOR = register_simulator(
 
 
 def __getattr__(name: str):
-    # lazy: the env modules import gymnasium and, when an env is made, ManiSkill
-    if name == "ManiSkillEnv":
-        from l1flow_rl.envs.maniskill.env import ManiSkillEnv
-
-        return ManiSkillEnv
     if name == "ManiSkillAsyncEnv":
+        # optional dependency: the module imports gymnasium (the maniskill extra)
         from l1flow_rl.envs.maniskill.async_env import ManiSkillAsyncEnv
 
         return ManiSkillAsyncEnv

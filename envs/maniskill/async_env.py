@@ -165,6 +165,7 @@ class ManiSkillAsyncEnv(ManiSkillEnvBase):
             camera=camera,
             reconfigure_each_episode=reconfigure_each_episode,
         )
+        # optional dependency: the simulator's gymnasium API
         from gymnasium.vector import AsyncVectorEnv, AutoresetMode
 
         what = f"ManiSkill on the CPU with num_envs={num_envs} ({task.name!r})"

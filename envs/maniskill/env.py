@@ -12,7 +12,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from l1flow_rl.envs.maniskill import INSTALL_HINT
 from l1flow_rl.envs.maniskill.base import ManiSkillEnvBase
 from l1flow_rl.envs.maniskill.obs import flatten_maniskill_obs
 from tensordict import TensorDict, TensorDictBase
@@ -20,11 +19,14 @@ from torch import Tensor
 
 from l1flow_rl.config import TaskConfig
 
+INSTALL_HINT = "pip install 'l1flow-rl[maniskill]' (and a Vulkan driver: ./install.sh maniskill)"
+
 __all__ = ["ManiSkillEnv", "make_gym_env"]
 
 
 def _import_maniskill():
     try:
+        # optional dependency: the simulator's gymnasium API
         import gymnasium as gym
         import mani_skill.envs  # noqa: F401  (registers the tasks with gymnasium)
     except ImportError as err:
@@ -69,6 +71,7 @@ def make_gym_env(task: TaskConfig, num_envs: int, device: torch.device, *, rende
 def physx_gpu_library() -> tuple[Path, str]:
     """Where SAPIEN looks for PhysX's GPU library (``libPhysXGpu_64.so``, not in its wheel) and the
     release archive it downloads it from on first use of physx_cuda."""
+    # optional dependency: the simulator (maniskill extra)
     import sapien
 
     version = sapien.physx.version()
@@ -82,6 +85,7 @@ def _check_physx_gpu_library() -> None:
     path, url = physx_gpu_library()
     if path.is_file():
         return
+    # optional dependency: the simulator (maniskill extra)
     import sapien
 
     try:

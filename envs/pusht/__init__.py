@@ -11,13 +11,16 @@ import functools
 from collections.abc import Mapping
 
 import torch
+from l1flow_rl.envs.pusht.env import PushTEnv
+from l1flow_rl.envs.pusht.protocol import PROTOCOL as PROTOCOL  # registers eval.protocol=diffusion_policy
 from l1flow_rl.envs.registry import SimulatorSpec, register_simulator
+from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
 from tensordict.utils import NestedKey
 from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
 
 from l1flow_rl.config import TaskConfig
 
-__all__ = ["BACKENDS", "INSTALL_HINT", "make_pusht_env", "pusht_observation_entries"]
+__all__ = ["BACKENDS", "INSTALL_HINT", "PushTEnv", "make_pusht_env", "pusht_observation_entries"]
 
 INSTALL_HINT = "pip install 'l1flow-rl[pusht]' (or: pip install gym-pusht==0.1.8)"
 
@@ -69,8 +72,6 @@ def make_pusht_env(
     (``"serial"``); ``"auto"`` picks serial for low-dim observations and parallel for pixels. The
     simulator runs on the CPU; outputs move to ``device``. Workers are spawned: forked ones hung at
     their first reset here (a script that makes them needs the ``__main__`` guard)."""
-    from l1flow_rl.envs.pusht.env import PushTEnv
-
     if backend not in BACKENDS:
         raise ValueError(f"pusht: backend must be one of {BACKENDS}, got {backend!r}")
     make = functools.partial(
@@ -81,8 +82,6 @@ def make_pusht_env(
     if backend == "serial" or num_envs == 1:
         env = SerialEnv(num_envs, make, device=device)
     else:
-        from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
-
         what = f"PushT with num_envs={num_envs} in worker processes ({task.name!r})"
         check_main_guard(what)  # spawned workers re-import the main script
         with explain_worker_start_failure(what):
@@ -105,34 +104,3 @@ SIMULATOR = register_simulator(
         episode_metrics={"score": ("max", "reward"), "max_coverage": ("max", "coverage")},
     )
 )
-
-
-def __getattr__(name: str):
-    if name == "PushTEnv":  # lazy: the env module imports gymnasium, and gym-pusht when made
-        from l1flow_rl.envs.pusht.env import PushTEnv
-
-        return PushTEnv
-    raise AttributeError(f"module 'l1flow_rl.envs.pusht' has no attribute {name!r}")
-
-
-def _register_protocol() -> None:
-    from l1flow_rl.evaluation.protocols import EvalProtocol, register_protocol
-
-    register_protocol(
-        EvalProtocol(
-            name="diffusion_policy",
-            description=(
-                "Diffusion Policy's PushT evaluation: 50 test seeds from 100000, 300 steps, score (the "
-                "mean of each episode's best clip(coverage / 0.95, 0, 1)) first"
-            ),
-            episodes=50,
-            seed=100000,
-            task_fields=lambda task: {"max_episode_steps": 300},
-            headline="score",
-            simulators=("pusht",),
-        ),
-        replace=True,  # a re-imported module registers its own copy
-    )
-
-
-_register_protocol()

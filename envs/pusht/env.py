@@ -39,6 +39,7 @@ def observation_dim(obs_mode: str) -> int:
 
 def _make_gym_env(task: TaskConfig, render: bool):
     os.environ.setdefault("SDL_AUDIODRIVER", "dummy")  # pygame: no ALSA noise on headless machines
+    # optional dependency: the simulator's gymnasium API
     import gym_pusht  # noqa: F401  (registers gym_pusht/PushT-v0)
     import gymnasium as gym
 

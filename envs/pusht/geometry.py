@@ -4,6 +4,8 @@ gym-pusht's ``reset_to_state`` reproduce an observed state. Pure numpy; no simul
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 __all__ = [
@@ -89,9 +91,8 @@ def compute_dp_block_keypoints(seed: int = 0, count: int = 9) -> np.ndarray:
     """Diffusion Policy's recipe for the block keypoints, recomputed: render the T at (256, 300),
     angle 0, with gym-pusht's drawing code; farthest-point-sample ``count`` of its pixels (first point
     drawn by ``default_rng(seed)``); add a U(0, 1) shift. Needs pygame and gym-pusht."""
-    import os
-
     os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+    # optional dependency: the simulator (pusht extra)
     import pygame
     import pymunk
     from gym_pusht.envs.pusht import PushTEnv

@@ -40,6 +40,7 @@ def prepare_robomimic_dataset(
     """``path`` itself when it stores the task's observations (its ``state_keys`` and, for image
     tasks, its cameras), else a copy under ``data_dir/robosuite/imported`` with robomimic's
     observations regenerated from the states (made once, reused while the source is unchanged)."""
+    # optional dependency: h5py (robomimic files are HDF5; the formats import it)
     import h5py
 
     from l1flow_rl.data.formats.robomimic import has_observations
@@ -56,6 +57,7 @@ def prepare_robomimic_dataset(
     target = Path(data_dir) / "robosuite" / "imported" / _cache_name(path, task)
     if target.is_file():
         return target
+    # optional dependency: the module imports h5py
     from l1flow_rl.envs.robosuite.regenerate import regenerate_observations
 
     return regenerate_observations(path, target, cameras=cameras, image_size=task.image_size, workers=workers)

@@ -25,6 +25,14 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+import torch
+from l1flow_rl.envs.robosuite import sim
+from l1flow_rl.envs.robosuite.pool import worker_pool
+
+from l1flow_rl.data.episodes import EpisodeDataError
+from l1flow_rl.data.formats.base import open_h5
+from l1flow_rl.data.formats.robomimic import check_replayable, demo_names
+from l1flow_rl.data.formats.robomimic_writer import RobomimicWriter
 
 __all__ = ["regenerate_observations", "replay_demo_observations"]
 
@@ -32,8 +40,6 @@ _WORKER: dict = {}
 
 
 def _read_env_args(h5: h5py.File, path: Path) -> dict:
-    from l1flow_rl.data.episodes import EpisodeDataError
-
     raw = h5["data"].attrs.get("env_args") if "data" in h5 else None
     if raw is None:
         raise EpisodeDataError(f"{path}: key 'data' attribute 'env_args': missing; cannot rebuild the scene")
@@ -47,8 +53,6 @@ def replay_demo_observations(
     env, states: np.ndarray, actions: np.ndarray, model_file: str | None, cameras: Sequence[str]
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """(obs, next_obs) of one demo, robomimic's keys -> [T, ...], from its states on ``env``."""
-    from l1flow_rl.envs.robosuite import sim
-
     current = getattr(env, "_l1flow_model_file", None)
     frames = []
     for t, state in enumerate(states):
@@ -64,9 +68,6 @@ def replay_demo_observations(
 
 
 def _worker_init(env_args: dict, cameras: list[str], image_size: int | None, source: str) -> None:
-    import torch
-    from l1flow_rl.envs.robosuite import sim
-
     torch.set_num_threads(1)
     _WORKER["env"] = sim.make_from_env_args(env_args, cameras=cameras, image_size=image_size, source=source)
     _WORKER["cameras"] = cameras
@@ -85,8 +86,6 @@ def _worker_demo(name: str) -> tuple[str, dict, dict]:
 
 
 def _check_demo(h5: h5py.File, path: Path, name: str, action_dim: int | None) -> None:
-    from l1flow_rl.data.formats.robomimic import check_replayable
-
     check_replayable(h5["data"][name], path, name, action_dim)
 
 
@@ -103,12 +102,7 @@ def regenerate_observations(
     ``obs``/``next_obs`` recomputed from the states; images of ``cameras`` (default: the file's
     recorded ``camera_names`` when it rendered any, else none) at ``image_size``. Every demo is
     checked (states present, one per action, finite) before any replay starts."""
-    from l1flow_rl.envs.robosuite.pool import worker_pool
-    from tqdm import tqdm
-
-    from l1flow_rl.data.formats.base import open_h5
-    from l1flow_rl.data.formats.robomimic import demo_names
-    from l1flow_rl.data.formats.robomimic_writer import RobomimicWriter
+    from tqdm import tqdm  # optional dependency (the app extra): the progress bar
 
     source, target = Path(source), Path(target)
     with open_h5(source) as h5:

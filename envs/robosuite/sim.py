@@ -19,6 +19,7 @@ from l1flow_rl.config import TaskConfig
 __all__ = [
     "INSTALL_HINT",
     "ROBOMIMIC_ENV_TYPE",
+    "choose_gl",
     "controller_configs",
     "env_args_for_task",
     "image_key",
@@ -44,7 +45,7 @@ ROBOMIMIC_ENV_TYPE = 1
 _ROBOSUITE_KEY = {"object": "object-state"}
 
 
-def _choose_gl() -> str:
+def choose_gl() -> str:
     """EGL where a GPU device node exists, else OSMesa (software; EGL without a device fails or
     falls back to the same software rasteriser). A ``MUJOCO_GL`` set by the user wins."""
     if glob.glob("/dev/nvidia[0-9]*") or glob.glob("/dev/dri/renderD*"):
@@ -54,13 +55,14 @@ def _choose_gl() -> str:
 
 def import_robosuite():
     """``robosuite``, imported after ``MUJOCO_GL`` is set (it is read once, at import)."""
-    os.environ.setdefault("MUJOCO_GL", _choose_gl())
+    os.environ.setdefault("MUJOCO_GL", choose_gl())
     if os.environ["MUJOCO_GL"] in ("egl", "osmesa"):
         os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
     logger = logging.getLogger("robosuite_logs")
     if not any(isinstance(f, _RoutineNoise) for f in logger.filters):
         logger.addFilter(_RoutineNoise())
     try:
+        # optional dependency: the simulator (robosuite extra)
         import robosuite
     except ImportError as err:
         raise ImportError(f"robosuite is not importable ({err}): {INSTALL_HINT}") from err
@@ -100,6 +102,7 @@ def controller_configs(robot: str, control_mode: str, control: str) -> dict:
     Policy's absolute-action conversion) did: absolute arm actions are [x, y, z, axis-angle (3)]
     of the end effector in world coordinates; the last dim is the gripper (-1 open, 1 closed).
     """
+    # optional dependency: the simulator (robosuite extra)
     from robosuite.controllers import load_composite_controller_config
 
     if control not in ("absolute", "delta"):
@@ -150,6 +153,7 @@ def recorded_control(env_kwargs: Mapping[str, Any]) -> tuple[str | None, str | N
 def _modern_controller(cfg: Mapping[str, Any], robot: str) -> dict:
     """A robosuite <= 1.4 part controller config as 1.5's composite one, keeping its meaning:
     ``control_delta=False`` becomes ``input_type="absolute"``, and targets stay in the world frame."""
+    # optional dependency: the simulator (robosuite extra)
     from robosuite.controllers.composite.composite_controller_factory import (
         refactor_composite_controller_config,
     )
@@ -286,6 +290,7 @@ def _fresh_kinematics(env) -> None:
     samples its sensors fixes that, so that observations regenerated from a file's stored states
     equal those an env produced; the dynamics are untouched (each step recomputes them anyway).
     """
+    # optional dependency: the simulator (robosuite extra)
     import mujoco
 
     sample = env._update_observables

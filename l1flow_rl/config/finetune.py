@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 __all__ = [
+    "CHECKS",
+    "CHOICES",
     "FINETUNE_MODES",
     "REWARDS",
     "REWARD_KEYS",
@@ -203,21 +205,17 @@ def _check_offline(cfg, command: str) -> list[str]:
     return []
 
 
-def _register_choices() -> None:
-    from l1flow_rl.config.validate import register_check, register_choices
-
-    register_choices("finetune.mode", lambda: FINETUNE_MODES)
-    register_choices("finetune.q_agg", lambda: ("mean", "min"))
-    register_choices("finetune.backup", lambda: ("max", "mean", "one_step"))
-    register_choices("finetune.critic_input", lambda: ("action", "residual"))
-    register_choices("finetune.reward", lambda: REWARDS)
-    register_choices("finetune.critic_target", lambda: ("td", "mc"))
-    register_choices("finetune.select_with", lambda: ("critic", "target"))
-    register_choices("finetune.one_step_init", lambda: ("teacher", "scratch"))
-    register_choices("online.mixing", lambda: ("seed", "balanced"))
-    register_check(_check_online)
-    register_check(_check_offline)
-    register_check(_check_critic)
-
-
-_register_choices()  # a bad value fails at config time, naming the field (l1flow_rl.config.validate)
+#: The fine-tuning fields' allowed values and cross-field checks, read by the config validator
+#: (l1flow_rl.config.validate), so that a bad value fails at config time, naming the field.
+CHOICES = {
+    "finetune.mode": lambda: FINETUNE_MODES,
+    "finetune.q_agg": lambda: ("mean", "min"),
+    "finetune.backup": lambda: ("max", "mean", "one_step"),
+    "finetune.critic_input": lambda: ("action", "residual"),
+    "finetune.reward": lambda: REWARDS,
+    "finetune.critic_target": lambda: ("td", "mc"),
+    "finetune.select_with": lambda: ("critic", "target"),
+    "finetune.one_step_init": lambda: ("teacher", "scratch"),
+    "online.mixing": lambda: ("seed", "balanced"),
+}
+CHECKS = (_check_online, _check_offline, _check_critic)

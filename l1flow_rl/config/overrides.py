@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from hydra.core.hydra_config import HydraConfig
+
 __all__ = ["OPEN_DICTS", "open_dict_overrides", "overrides_under", "user_overrides"]
 
 #: config dicts whose keys depend on another value (the sampler's or the loss's arguments): an
@@ -19,8 +21,6 @@ OPEN_DICTS = ("policy.sampler_kwargs", "policy.loss_kwargs", "eval.val_sampler_k
 def user_overrides() -> list[str]:
     """The command-line overrides of the running hydra job (``hydra.overrides.task``), e.g.
     ``["policy.sampler=ddim", "policy.sampler_kwargs.steps=16"]``; empty outside a hydra job."""
-    from hydra.core.hydra_config import HydraConfig
-
     if not HydraConfig.initialized():
         return []
     return [str(o) for o in HydraConfig.get().overrides.task]

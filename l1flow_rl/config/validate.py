@@ -1,16 +1,18 @@
 """Checks of a composed config that the dataclass schema cannot express, run before any work.
 
-The schema (:class:`~l1flow_rl.config.AppConfig`) checks keys and types. This module checks
-values against the registries that define them (samplers, losses, simulators, normalisers,
-loggers, padding rules, and the protocols and encoders other packages register), the keys of
-``policy.sampler_kwargs`` / ``policy.loss_kwargs`` against what their constructors take, and that
-the task and the policy fit each other. Every problem is collected; the error names each field,
-what it holds and what is allowed. All of it takes well under a second: no simulator, network or
-demonstration is touched.
+The schema (:class:`~l1flow_rl.config.AppConfig`) checks keys and types. This module asks the
+registries that define the values (:data:`BUILTIN_CHOICES`: simulators, samplers, losses, encoders,
+evaluation protocols, ...) and runs the rules that live beside what they validate
+(:data:`BUILTIN_CHECKS`): a simulator's task rules (``SimulatorSpec.task_problems``), a sampler's
+and a loss's arguments (``sampler_problems``, ``loss_problems``), an encoder's fit to the
+observation (``encoder_problems``), the evaluation seeds (``eval_config_problems``). Every problem
+is collected; the error names each field, what it holds and what is allowed. All of it takes well
+under a second: no simulator, network or demonstration is touched (the simulator packages'
+registrations import no simulator).
 
-A package that adds an enum-like field plugs in with one call, e.g.::
+A package outside the library that adds an enum-like field or a rule plugs in with one call, e.g.::
 
-    register_choices("eval.protocol", lambda: sorted(PROTOCOLS))
+    register_choices("my_group.mode", lambda: sorted(MODES))
 
 Example:
     >>> from omegaconf import OmegaConf
@@ -26,13 +28,26 @@ Example:
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any, get_args
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
+from l1flow_rl.config import finetune
+from l1flow_rl.config.data import PADDING_RULES
+from l1flow_rl.config.task import CONTROL_KINDS, TaskConfig
+from l1flow_rl.config.train import LOGGERS
+from l1flow_rl.envs.registry import registered_simulators
+from l1flow_rl.evaluation.plan import eval_config_problems
+from l1flow_rl.evaluation.protocols import protocol_names
+from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_problems, samplers_for
+from l1flow_rl.networks.encoders import encoder_names, encoder_problems
+from l1flow_rl.normalizer import NormalizerMode
+from l1flow_rl.objectives.registry import get_loss, loss_names, loss_problems
+
 __all__ = [
+    "BUILTIN_CHECKS",
+    "BUILTIN_CHOICES",
     "COMMAND_SCOPES",
     "ConfigValidationError",
     "check_policy",
@@ -40,6 +55,8 @@ __all__ = [
     "register_choices",
     "validate_config",
 ]
+
+Check = Callable[[DictConfig, str], list[str]]
 
 
 class ConfigValidationError(ValueError):
@@ -57,8 +74,25 @@ COMMAND_SCOPES: dict[str, frozenset[str]] = {
     "toy": frozenset(),
 }
 
-_CHOICES: dict[str, Callable[[], Iterable[str]]] = {}
-_CHECKS: list[Callable[[DictConfig, str], list[str]]] = []
+#: Each enum-like field and the registry that answers what it may hold (read at validation time,
+#: so that a simulator, sampler, loss, encoder or protocol registered later is seen).
+BUILTIN_CHOICES: dict[str, Callable[[], Iterable[str]]] = {
+    "task.simulator": lambda: registered_simulators(),
+    "task.control": lambda: CONTROL_KINDS,
+    "data.padding": lambda: PADDING_RULES,
+    "policy.sampler": sampler_names,
+    "policy.loss": loss_names,
+    "policy.normalizer": lambda: get_args(NormalizerMode),
+    "policy.obs_normalizer": lambda: get_args(NormalizerMode),
+    "train.logger": lambda: LOGGERS,
+    "encoder.name": encoder_names,
+    "eval.protocol": protocol_names,
+    "eval.val_sampler": sampler_names,
+    **finetune.CHOICES,
+}
+
+_CHOICES: dict[str, Callable[[], Iterable[str]]] = dict(BUILTIN_CHOICES)
+_CHECKS: list[Check] = []
 
 
 def register_choices(field: str, choices: Callable[[], Iterable[str]]) -> None:
@@ -67,7 +101,7 @@ def register_choices(field: str, choices: Callable[[], Iterable[str]]) -> None:
     _CHOICES[field] = choices
 
 
-def register_check(check: Callable[[DictConfig, str], list[str]]) -> None:
+def register_check(check: Check) -> None:
     """Add a cross-field check: ``check(cfg, command)`` returns problems, one line each."""
     if check not in _CHECKS:
         _CHECKS.append(check)
@@ -81,71 +115,6 @@ def _plain(node: Any) -> Any:
     if isinstance(node, (DictConfig, ListConfig)):
         return OmegaConf.to_container(node, resolve=True)
     return node
-
-
-# -- registries of the built-in fields ---------------------------------------------------------------
-
-
-def _simulators() -> list[str]:
-    from l1flow_rl.envs.registry import registered_simulators
-
-    return sorted(registered_simulators())
-
-
-def _normalizer_modes() -> list[str]:
-    from l1flow_rl.normalizer import NormalizerMode
-
-    return list(get_args(NormalizerMode))
-
-
-def _samplers() -> list[str]:
-    from l1flow_rl.flow.samplers import sampler_names
-
-    return sampler_names()
-
-
-def _losses() -> list[str]:
-    from l1flow_rl.workspace.build import LOSSES
-
-    return sorted(LOSSES)
-
-
-def _control_kinds() -> list[str]:
-    from l1flow_rl.config.task import CONTROL_KINDS
-
-    return list(CONTROL_KINDS)
-
-
-def _padding_rules() -> list[str]:
-    from l1flow_rl.config.data import PADDING_RULES
-
-    return list(PADDING_RULES)
-
-
-def _encoders() -> list[str]:
-    from l1flow_rl.networks.encoders import encoder_names
-
-    return encoder_names()
-
-
-def _loggers() -> list[str]:
-    from l1flow_rl.config.train import LOGGERS
-
-    return list(LOGGERS)
-
-
-for _field, _provider in {
-    "task.simulator": _simulators,
-    "task.control": _control_kinds,
-    "data.padding": _padding_rules,
-    "policy.sampler": _samplers,
-    "policy.loss": _losses,
-    "policy.normalizer": _normalizer_modes,
-    "policy.obs_normalizer": _normalizer_modes,
-    "train.logger": _loggers,
-    "encoder.name": _encoders,
-}.items():
-    register_choices(_field, _provider)
 
 
 # -- checks ------------------------------------------------------------------------------------------
@@ -163,65 +132,32 @@ def _check_choices(cfg: DictConfig) -> list[str]:
     return problems
 
 
-def _accepted_kwargs(cls: type) -> list[str]:
-    params = inspect.signature(cls.__init__).parameters.values()
-    skip = {"self", "actor_network"}
-    kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
-    return [p.name for p in params if p.name not in skip and p.kind in kinds]
-
-
 def check_policy(
     policy: Mapping[str, Any] | DictConfig, prefix: str = "policy", sampler_field: str | None = None
 ) -> list[str]:
-    """Problems with a method: the sampler's and the loss's names and keyword arguments, the
-    values the sampler refuses, and whether the loss trains what the sampler reads. Messages name
-    ``<prefix>.loss`` and ``<sampler_field>`` / ``<sampler_field>_kwargs`` (default
-    ``<prefix>.sampler``), so a sampler set elsewhere (``eval.val_sampler``) is checked the same way.
+    """Problems with a method: the sampler's and the loss's arguments (asked of their registries)
+    and whether the loss trains what the sampler reads. Messages name ``<prefix>.loss`` and
+    ``<sampler_field>`` / ``<sampler_field>_kwargs`` (default ``<prefix>.sampler``), so a sampler set
+    elsewhere (``eval.val_sampler``) is checked the same way. Unknown names are left to the choices
+    check.
 
     Example:
         >>> policy = {"sampler": "euler", "sampler_kwargs": {"t_first": 0.5}, "loss": "l1flow"}
         >>> print(*check_policy(policy))  # doctest: +ELLIPSIS
         policy.sampler_kwargs.t_first: sampler 'euler' takes no such argument; it takes ['steps'] ...
     """
-    from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_parameters, samplers_for
-    from l1flow_rl.workspace.build import LOSSES
-
     p = _plain(policy)
     sf = sampler_field or f"{prefix}.sampler"
-    problems: list[str] = []
     sampler_name, loss_name = p.get("sampler"), p.get("loss")
+    problems: list[str] = []
     sampler = None
     if sampler_name in sampler_names():
-        kwargs = dict(p.get("sampler_kwargs") or {})
-        accepted = sampler_parameters(sampler_name)
-        unknown = sorted(set(kwargs) - set(accepted))
-        problems += [
-            f"{sf}_kwargs.{k}: sampler {sampler_name!r} takes no such argument; it takes "
-            f"{accepted} (drop it with ~{sf}_kwargs.{k})"
-            for k in unknown
-        ]
-        if not unknown:
-            try:
-                sampler = make_sampler(sampler_name, **kwargs)
-            except (TypeError, ValueError) as err:
-                problems.append(f"{sf}_kwargs={kwargs}: {err}")
-    if loss_name in LOSSES:
-        cls = LOSSES[loss_name]
-        accepted = _accepted_kwargs(cls)
-        kwargs = dict(p.get("loss_kwargs") or {})
-        problems += [
-            f"{prefix}.loss_kwargs.{k}: loss {loss_name!r} ({cls.__name__}) takes no such argument; "
-            f"it takes {accepted}"
-            for k in sorted(set(kwargs) - set(accepted))
-        ]
-        if isinstance(kwargs.get("timesteps"), str):
-            from l1flow_rl.flow.timesteps import make_timesteps
-
-            try:
-                make_timesteps(kwargs["timesteps"])
-            except ValueError as err:
-                problems.append(f"{prefix}.loss_kwargs.timesteps: {err}")
-        prediction = getattr(cls, "prediction", None)
+        kwargs = p.get("sampler_kwargs") or {}
+        problems += sampler_problems(sampler_name, kwargs, sf)
+        sampler = None if problems else make_sampler(sampler_name, **kwargs)
+    if loss_name in loss_names():
+        problems += loss_problems(loss_name, p.get("loss_kwargs"), prefix)
+        prediction = getattr(get_loss(loss_name), "prediction", None)
         if sampler is not None and prediction and sampler.prediction != prediction:
             problems.append(
                 f"{sf}={sampler_name!r} reads a {sampler.prediction!r}-prediction network, but "
@@ -231,50 +167,41 @@ def check_policy(
     return problems
 
 
-def _encoder_reads_images(name: str) -> bool:
-    from l1flow_rl.networks.encoders import get_encoder, resolve_encoder_name
+def _check_val_sampler(cfg: DictConfig, command: str) -> list[str]:
+    """``eval.val_sampler`` and its arguments, against what ``policy.loss`` trains: the method check
+    under the eval field names."""
+    ev = cfg.get("eval") if isinstance(cfg, DictConfig) else None
+    if ev is None or not ev.get("val_sampler") or cfg.get("policy") is None:
+        return []
+    method = {
+        "sampler": ev.val_sampler,
+        "sampler_kwargs": ev.get("val_sampler_kwargs"),
+        "loss": cfg.policy.loss,
+    }
+    return check_policy(method, sampler_field="eval.val_sampler")
 
-    try:
-        return get_encoder(resolve_encoder_name(name, has_images=True)).images
-    except ValueError:  # an unknown name: reported by the choices check
-        return True
+
+#: The rules that read more than one field, each defined beside what it validates.
+BUILTIN_CHECKS: tuple[Check, ...] = (_check_val_sampler, eval_config_problems, *finetune.CHECKS)
 
 
 def _check_task(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
-    """obs_mode and env options against the simulator's spec; an image task needs an image encoder."""
-    from l1flow_rl.config.task import TaskConfig
-    from l1flow_rl.envs.registry import registered_simulators
-
+    """The task against its simulator's rules (``SimulatorSpec.task_problems``: obs_mode, env keys);
+    an image task needs an encoder that reads images (``encoder_problems``)."""
     spec = registered_simulators().get(_select(cfg, "task.simulator"))
     if spec is None:  # reported by the choices check
         return []
-    problems = []
-    obs_mode = cfg.task.obs_mode
-    if obs_mode not in spec.obs_modes:
-        problems.append(
-            f"task.obs_mode={obs_mode!r}: simulator {spec.name!r} supports {sorted(spec.obs_modes)}"
-        )
+    task = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(TaskConfig), cfg.task))
+    problems = spec.task_problems(task)
+    encoder = _select(cfg, "encoder.name")
+    if problems or "network" not in scopes or encoder not in encoder_names():
         return problems
-    # task.env keys: checked where the simulator lists them (SimulatorSpec.env_keys); ManiSkill and
-    # robosuite pass the block on to gym.make / robosuite.make, which name a key they do not take.
-    if spec.env_keys is not None:
-        unknown = sorted(set(cfg.task.env or {}) - set(spec.env_keys))
-        if unknown:
-            problems.append(
-                f"task.env: simulator {spec.name!r} takes no key(s) {unknown}; "
-                f"it takes {sorted(spec.env_keys)}"
-            )
-    if "network" in scopes:
-        task = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(TaskConfig), cfg.task))
-        images = [k for k, dims in spec.observation_entries(task).items() if dims == 3]
-        encoder = _select(cfg, "encoder.name")
-        if images and encoder is not None and not _encoder_reads_images(encoder):
-            problems.append(
-                f"task {cfg.task.name!r} observes images (task.obs_mode={obs_mode!r}, entries {images}), but "
-                f"encoder.name={encoder!r} reads flat vectors only; use an image encoder (encoder=auto or "
-                "encoder=resnet18_gn) or a state task (task.obs_mode=state)"
-            )
-    return problems
+    images = [k for k, dims in spec.observation_entries(task).items() if dims == 3]
+    return [
+        f"task {task.name!r} (task.obs_mode={task.obs_mode!r}): {problem}, or a state task "
+        "(task.obs_mode=state)"
+        for problem in encoder_problems(encoder, images)
+    ]
 
 
 def validate_config(cfg: DictConfig, command: str = "train") -> None:
@@ -286,7 +213,7 @@ def validate_config(cfg: DictConfig, command: str = "train") -> None:
         problems += check_policy(cfg.policy)
     if "task" in cfg:
         problems += _check_task(cfg, scopes)
-    for check in _CHECKS:
+    for check in (*BUILTIN_CHECKS, *_CHECKS):
         problems += check(cfg, command)
     if problems:
         raise ConfigValidationError(

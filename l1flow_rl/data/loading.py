@@ -156,6 +156,7 @@ def _load_memmap(reader: EpisodeFile, options: dict, target: Path, progress: boo
     row = 0
     episodes = zip(ids, lengths)
     if progress:
+        # optional dependency (app extra): the progress bar
         from tqdm import tqdm
 
         episodes = tqdm(list(episodes), desc=f"storing {reader.path.name}", unit="episode")

@@ -1,5 +1,6 @@
 """Evaluation: the batched evaluator, episode schedule, metrics with confidence intervals,
-protocols, videos and the ``l1flow-rl eval`` command.
+protocols and videos. The ``l1flow-rl eval`` command is :mod:`l1flow_rl.evaluation.cli` (it loads
+checkpoints, so this package does not import it).
 
 ``evaluate(actor, env, episodes, seed)`` runs seeded episodes across parallel envs;
 :mod:`~l1flow_rl.evaluation.protocols` names how a figure is measured (``eval.protocol``);
@@ -7,7 +8,6 @@ protocols, videos and the ``l1flow-rl eval`` command.
 (reported figures).
 """
 
-from l1flow_rl.evaluation.cli import run_eval
 from l1flow_rl.evaluation.evaluator import BUILTIN_METRICS, evaluate, sampler_record
 from l1flow_rl.evaluation.metrics import mean_interval, summarize_metrics, wilson_interval
 from l1flow_rl.evaluation.plan import SPLITS, EvalPlan, resolve_plan
@@ -24,7 +24,6 @@ __all__ = [
     "protocol_names",
     "register_protocol",
     "resolve_plan",
-    "run_eval",
     "sampler_record",
     "summarize_metrics",
     "wilson_interval",

@@ -9,6 +9,13 @@ from typing import Any
 
 from omegaconf import DictConfig
 
+from l1flow_rl.device import resolve_device
+from l1flow_rl.evaluation.evaluator import evaluate, sampler_record
+from l1flow_rl.evaluation.plan import resolve_plan, task_from
+from l1flow_rl.evaluation.rescore import eval_sampler
+from l1flow_rl.workspace.checkpoint import load_actor
+from l1flow_rl.workspace.report import format_summary
+
 __all__ = ["run_eval", "write_eval_json"]
 
 
@@ -34,13 +41,6 @@ def _headline_rows(result: dict[str, Any], headline: str) -> dict[str, Any]:
 def run_eval(cfg: DictConfig) -> int:
     """``l1flow-rl eval checkpoint=PATH [policy.sampler=... policy.sampler_kwargs.k=v]
     [eval.protocol=NAME] [eval.episodes=N] run_dir=DIR``: writes DIR/eval.json (test seeds)."""
-    from l1flow_rl.envs import resolve_device
-    from l1flow_rl.evaluation.evaluator import evaluate, sampler_record
-    from l1flow_rl.evaluation.plan import resolve_plan, task_from
-    from l1flow_rl.evaluation.rescore import eval_sampler
-    from l1flow_rl.workspace.checkpoint import load_actor
-    from l1flow_rl.workspace.report import format_summary
-
     if not cfg.checkpoint:
         print("l1flow-rl eval: pass checkpoint=PATH (a .pt file, or a run's checkpoints/ folder)")
         return 2

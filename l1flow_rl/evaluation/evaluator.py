@@ -25,9 +25,11 @@ from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from torchrl.modules import MultiStepActorWrapper
 
+from l1flow_rl.envs.per_env import num_parallel_envs, seeded_reset, sim_error_messages
 from l1flow_rl.evaluation.metrics import MEAN, RATE, summarize_metrics
 from l1flow_rl.evaluation.schedule import REDUCTIONS, Schedule
 from l1flow_rl.evaluation.videos import add_frames, write_video
+from l1flow_rl.flow.samplers import sampler_name
 
 __all__ = ["BUILTIN_METRICS", "evaluate", "sampler_record"]
 
@@ -84,8 +86,6 @@ class _NetworkCalls:
 
 def sampler_record(actor: TensorDictModuleBase) -> dict[str, Any] | None:
     """What eval.json says about the sampler: its name, settings, declared NFE and prediction type."""
-    from l1flow_rl.flow.samplers import sampler_name
-
     sampler = getattr(getattr(actor, "policy", None), "sampler", None)
     if sampler is None:
         return None
@@ -205,8 +205,6 @@ def evaluate(
         >>> evaluate(actor, env, episodes=2, seed=0)["episodes"]
         2
     """
-    from l1flow_rl.envs.per_env import num_parallel_envs, seeded_reset, sim_error_messages
-
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     metrics = dict(episode_metrics or {})

@@ -14,11 +14,14 @@ from tensordict.utils import NestedKey
 
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.config.overrides import overrides_under
+from l1flow_rl.device import resolve_device
+from l1flow_rl.envs import make_env
+from l1flow_rl.envs.registry import get_simulator
 from l1flow_rl.evaluation.evaluator import BUILTIN_METRICS
 from l1flow_rl.evaluation.protocols import EvalProtocol, get_protocol
 from l1flow_rl.evaluation.videos import video_episodes_to_film
 
-__all__ = ["SPLITS", "EvalPlan", "check_seed_ranges", "resolve_plan", "task_from"]
+__all__ = ["SPLITS", "EvalPlan", "check_seed_ranges", "eval_config_problems", "resolve_plan", "task_from"]
 
 #: "val": seeds that choose the best checkpoint; "test": separate seeds for the reported figures
 SPLITS = ("val", "test")
@@ -31,6 +34,24 @@ def check_seed_ranges(val_seed: int, val_episodes: int, seed: int, episodes: int
             f"eval.val_seed={val_seed} (+{val_episodes} episodes) overlaps the test seeds eval.seed={seed} "
             f"(+{episodes} episodes); choose disjoint ranges so that the test figures stay held out"
         )
+
+
+def eval_config_problems(cfg: DictConfig, command: str) -> list[str]:
+    """The ``eval`` group's values that cannot work for ``command`` (config time, one line each):
+    episode counts, and validation seeds that overlap the test seeds."""
+    ev = cfg.get("eval") if isinstance(cfg, DictConfig) else None
+    if ev is None:
+        return []
+    problems = []
+    if ev.episodes < 1 and command == "eval":
+        problems.append(f"eval.episodes={ev.episodes}: expected >= 1")
+    if ev.val_episodes < 0:
+        problems.append(f"eval.val_episodes={ev.val_episodes}: expected >= 0 (0: as many as eval.episodes)")
+    try:
+        check_seed_ranges(ev.val_seed, ev.val_episodes or ev.episodes, ev.seed, ev.episodes)
+    except ValueError as err:
+        problems.append(str(err))
+    return problems
 
 
 @dataclass
@@ -62,8 +83,6 @@ class EvalPlan:
         return (self.val_episodes, self.val_seed) if name == "val" else (self.episodes, self.seed)
 
     def make_env(self, obs_horizon: int):
-        from l1flow_rl.envs import make_env
-
         return make_env(
             self.task,
             num_envs=self.num_envs,
@@ -99,9 +118,6 @@ def resolve_plan(
     """The evaluation of ``task`` under ``cfg.eval`` and its protocol. A value the user gave on the
     command line (``overrides``, default: the running hydra job's) beats the protocol's, and the
     plan lists it under ``deviations``."""
-    from l1flow_rl.envs import resolve_device
-    from l1flow_rl.envs.registry import get_simulator
-
     ev = cfg.eval
     protocol = get_protocol(ev.protocol)
     protocol.check_task(task)

@@ -6,9 +6,10 @@ per-task ``max_episode_steps``), env options (``reconfigure_each_episode``), the
 and the headline metric. ``eval.protocol=NAME`` picks one; a value the user gives on the command
 line (``eval.episodes=20``) still wins and is recorded in eval.json as a deviation.
 
-Built in: ``default`` (this project's settings: the task config as is, ``eval.*`` as configured) and
-``maniskill`` (ManiSkill's Diffusion Policy baseline evaluation). A simulator package registers its
-own (PushT: ``diffusion_policy``) with :func:`register_protocol`.
+Built in: ``default`` (this project's settings: the task config as is, ``eval.*`` as configured). A
+simulator's own protocols live beside it and register themselves with :func:`register_protocol`
+when its package is imported: ``maniskill`` (ManiSkill's Diffusion Policy baseline evaluation,
+``envs/maniskill/protocol.py``), ``diffusion_policy`` (PushT, ``envs/pusht/protocol.py``).
 """
 
 from __future__ import annotations
@@ -16,15 +17,14 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-if TYPE_CHECKING:  # pragma: no cover
-    from l1flow_rl.config import TaskConfig
+from l1flow_rl.config import TaskConfig
+from l1flow_rl.envs.registry import registered_simulators
 
 __all__ = [
     "EvalProtocol",
     "get_protocol",
-    "maniskill_baseline_steps",
     "protocol_names",
     "register_protocol",
 ]
@@ -95,10 +95,7 @@ def register_protocol(protocol: EvalProtocol, *, replace: bool = False) -> EvalP
 
 
 def _load_simulator_protocols() -> None:
-    # simulator packages register their own protocols when imported (they import no simulator)
-    from l1flow_rl.envs.registry import registered_simulators
-
-    registered_simulators()
+    registered_simulators()  # simulator packages register their own protocols when imported
 
 
 def protocol_names() -> list[str]:
@@ -117,51 +114,9 @@ def get_protocol(name: str) -> EvalProtocol:
         raise ValueError(f"unknown eval.protocol {name!r}; registered protocols: {known}") from None
 
 
-#: max_episode_steps of ManiSkill's Diffusion Policy baseline (examples/baselines/diffusion_policy),
-#: by env id; other tasks run to the env's own registered limit there
-MANISKILL_BASELINE_STEPS: dict[str, int] = {
-    "PushCube-v1": 100,
-    "PickCube-v1": 100,
-    "StackCube-v1": 200,
-    "PegInsertionSide-v1": 300,
-}
-
-
-def maniskill_baseline_steps(task: TaskConfig) -> dict[str, Any]:
-    """``max_episode_steps`` as ManiSkill's baseline sets it for ``task.env_id``: the table above,
-    else the env's registered default (ManiSkill is imported only for such a task)."""
-    steps = MANISKILL_BASELINE_STEPS.get(task.env_id)
-    if steps is None:
-        import gymnasium as gym
-        import mani_skill.envs  # noqa: F401  (registers the env ids)
-
-        try:
-            steps = gym.spec(task.env_id).max_episode_steps
-        except gym.error.Error as err:
-            raise ValueError(f"eval.protocol=maniskill: unknown ManiSkill env id {task.env_id!r}") from err
-        if steps is None:
-            raise ValueError(f"eval.protocol=maniskill: {task.env_id!r} registers no max_episode_steps")
-    return {"max_episode_steps": int(steps)}
-
-
 register_protocol(
     EvalProtocol(
         name="default",
         description="this project's settings: the task config's episode limit, eval.episodes and eval.seed",
-    )
-)
-register_protocol(
-    EvalProtocol(
-        name="maniskill",
-        description=(
-            "ManiSkill's Diffusion Policy baseline: its per-task max_episode_steps, 100 episodes, "
-            "physx_cpu, scene reconfigured each episode, success_once first"
-        ),
-        episodes=100,
-        task_fields=maniskill_baseline_steps,
-        env_options={"reconfigure_each_episode": True},
-        env_device="cpu",
-        headline="success_once",
-        simulators=("maniskill",),
     )
 )

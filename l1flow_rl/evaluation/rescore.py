@@ -15,6 +15,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from l1flow_rl.config.overrides import overrides_under
+from l1flow_rl.flow.samplers import sampler_parameters
 
 __all__ = ["eval_sampler"]
 
@@ -43,8 +44,6 @@ def eval_sampler(
         >>> eval_sampler(saved, composed, ["policy.sampler=ddim", "policy.sampler_kwargs.steps=16"])
         ('ddim', {'num_train_timesteps': 100, 'steps': 16})
     """
-    from l1flow_rl.flow.samplers import sampler_parameters
-
     saved, composed = _plain(saved_policy), _plain(composed_policy)
     given = overrides_under("policy", overrides)
     sampler_keys = ("policy", _SAMPLER, _KWARGS)

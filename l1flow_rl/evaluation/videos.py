@@ -3,6 +3,7 @@ handed to a TorchRL logger through its video API (``Logger.log_video``)."""
 
 from __future__ import annotations
 
+import importlib.util
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
@@ -11,14 +12,14 @@ from typing import Any
 import numpy as np
 import torch
 
+from l1flow_rl.envs.per_env import render_frames
+
 __all__ = ["add_frames", "default_video_episodes", "log_videos", "video_episodes_to_film", "write_video"]
 
 VIDEO_WRITER_HINT = "mp4 videos need imageio's ffmpeg backend: pip install imageio-ffmpeg (in l1flow-rl[app])"
 
 
 def _has_mp4_writer() -> bool:
-    import importlib.util
-
     return importlib.util.find_spec("imageio_ffmpeg") is not None
 
 
@@ -49,8 +50,6 @@ def video_episodes_to_film(configured: int | None, device: str | torch.device) -
 
 def add_frames(slots: Sequence[Any], env: Any, which: Sequence[int] | None = None) -> None:
     """Append the current frame of each env in ``which`` (default: all) whose episode is filmed."""
-    from l1flow_rl.envs.per_env import render_frames
-
     which = range(len(slots)) if which is None else which
     filmed = [i for i in which if slots[i] is not None and slots[i].frames is not None]
     if not filmed:
@@ -62,6 +61,7 @@ def add_frames(slots: Sequence[Any], env: Any, which: Sequence[int] | None = Non
 
 def write_video(path: Path, frames: Sequence[np.ndarray], fps: int) -> Path:
     """Write uint8 frames [H, W, 3] as an mp4 (imageio's ffmpeg)."""
+    # optional dependency (app extra): writing videos
     import imageio
 
     if not _has_mp4_writer():
@@ -79,6 +79,7 @@ def log_videos(logger: Any, result: dict[str, Any], step: int, prefix: str) -> l
     named ``{prefix}/video_seed{seed}``. A logger that lacks its video backend (TorchRL's CSV logger
     needs torchcodec, W&B and TensorBoard need moviepy) gets a warning once; the mp4 files in the
     run directory stay. Returns the names logged."""
+    # optional dependency (app extra): writing videos
     import imageio.v3 as iio
 
     logged = []

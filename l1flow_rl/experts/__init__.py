@@ -6,6 +6,7 @@
 The data layer (:mod:`l1flow_rl.data`) reads what these write; it does not know how they were made.
 """
 
+from l1flow_rl.experts.cli import run_demos
 from l1flow_rl.experts.registry import (
     DemoGenerationError,
     ExpertSpec,
@@ -24,11 +25,3 @@ __all__ = [
     "registered_experts",
     "run_demos",
 ]
-
-
-def __getattr__(name: str):
-    if name == "run_demos":
-        from l1flow_rl.experts.cli import run_demos
-
-        return run_demos
-    raise AttributeError(f"module 'l1flow_rl.experts' has no attribute {name!r}")

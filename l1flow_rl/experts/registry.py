@@ -39,9 +39,7 @@ __all__ = [
 def builtin_experts() -> list[str]:
     """The expert packages under ``l1flow_rl.experts`` (found on disk, so adding one edits nothing
     here); a package elsewhere registers itself on import (``register_expert`` is public)."""
-    import l1flow_rl.experts as experts
-
-    return sorted(m.name for m in pkgutil.iter_modules(experts.__path__) if m.ispkg)
+    return sorted(m.name for m in pkgutil.iter_modules([str(Path(__file__).parent)]) if m.ispkg)
 
 
 class DemoGenerationError(RuntimeError):

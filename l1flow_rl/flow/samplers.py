@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import abc
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 import torch
@@ -34,6 +34,7 @@ __all__ = [
     "sampler_name",
     "sampler_names",
     "sampler_parameters",
+    "sampler_problems",
     "samplers_for",
 ]
 
@@ -278,6 +279,33 @@ def sampler_parameters(name: str) -> list[str]:
     """The keyword arguments sampler ``name`` accepts (``policy.sampler_kwargs`` keys)."""
     cls = _sampler_class(name)
     return [p for p in inspect.signature(cls.__init__).parameters if p != "self"]
+
+
+def sampler_problems(name: str, kwargs: Mapping[str, Any] | None, field: str = "policy.sampler") -> list[str]:
+    """What is wrong with sampler ``name`` and its keyword arguments, one line each naming
+    ``<field>`` or ``<field>_kwargs.<key>``: an unknown name, arguments it does not take, values it
+    refuses.
+
+    Example:
+        >>> sampler_problems("euler", {"t_first": 0.5})  # doctest: +ELLIPSIS
+        ["policy.sampler_kwargs.t_first: sampler 'euler' takes no such argument; it takes ['steps'] ..."]
+    """
+    if name not in _REGISTRY:
+        return [f"{field}={name!r}: expected one of {sampler_names()}"]
+    kwargs = dict(kwargs or {})
+    accepted = sampler_parameters(name)
+    unknown = sorted(set(kwargs) - set(accepted))
+    if unknown:
+        return [
+            f"{field}_kwargs.{k}: sampler {name!r} takes no such argument; it takes {accepted} "
+            f"(drop it with ~{field}_kwargs.{k})"
+            for k in unknown
+        ]
+    try:
+        _REGISTRY[name](**kwargs)
+    except (TypeError, ValueError) as err:
+        return [f"{field}_kwargs={kwargs}: {err}"]
+    return []
 
 
 def _sampler_class(name: str) -> type[ChunkSampler]:

@@ -11,16 +11,9 @@ from torchrl.objectives import LossModule
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.flow.samplers import make_sampler
 from l1flow_rl.networks.encoders import AUTO, make_encoder
-from l1flow_rl.objectives import DiffusionLoss, FlowMatchingLoss, L1FlowLoss, RegressionLoss
+from l1flow_rl.objectives.registry import get_loss
 
-__all__ = ["LOSSES", "build_actor", "build_loss"]
-
-LOSSES: dict[str, type[LossModule]] = {
-    "l1flow": L1FlowLoss,
-    "flow_matching": FlowMatchingLoss,
-    "diffusion": DiffusionLoss,
-    "regression": RegressionLoss,
-}
+__all__ = ["build_actor", "build_loss"]
 
 
 def _plain(cfg: DictConfig | Mapping) -> dict:
@@ -61,8 +54,4 @@ def build_actor(
 
 def build_loss(actor: L1FlowActor, policy_cfg: DictConfig | Mapping) -> LossModule:
     p = _plain(policy_cfg)
-    try:
-        cls = LOSSES[p["loss"]]
-    except KeyError:
-        raise ValueError(f"policy.loss={p['loss']!r} is not one of {sorted(LOSSES)}") from None
-    return cls(actor, **p.get("loss_kwargs", {}))
+    return get_loss(p["loss"])(actor, **p.get("loss_kwargs", {}))

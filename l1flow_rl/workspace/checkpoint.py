@@ -22,6 +22,9 @@ from omegaconf import DictConfig, OmegaConf
 
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.errors import CheckpointReadError, UserInputError
+from l1flow_rl.networks.best_of_n import BestOfNActor
+from l1flow_rl.networks.critic import build_critics, stack_critics
+from l1flow_rl.workspace.build import build_actor
 
 __all__ = [
     "RESUME_MAY_CHANGE",
@@ -268,17 +271,12 @@ def load_actor(
     """Rebuild the actor a checkpoint was trained with (EMA weights by default) and its config: an
     :class:`~l1flow_rl.L1FlowActor`, or for a flow-Q ``best_of_n`` run the
     :class:`~l1flow_rl.networks.best_of_n.BestOfNActor` around one (its config's ``policy.best_of_n``)."""
-    from l1flow_rl.workspace.build import build_actor
-
     state = load_checkpoint(path, map_location)
     cfg = OmegaConf.create(state["config"])
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
     actor = build_actor(cfg.policy, shapes, int(state["action_dim"]), cfg.get("encoder"))
     best_of_n = cfg.policy.get("best_of_n")
     if best_of_n:  # a flow-Q best_of_n run: the policy selects with its critics
-        from l1flow_rl.networks.best_of_n import BestOfNActor
-        from l1flow_rl.networks.critic import build_critics, stack_critics
-
         h = int(best_of_n.rl_horizon)
         critics = build_critics(
             actor,

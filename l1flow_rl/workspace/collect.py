@@ -16,10 +16,14 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
+from torchrl.collectors import Collector
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import MultiStepActorWrapper
 
+from l1flow_rl.config import TaskConfig
 from l1flow_rl.config.finetune import round_frames
+from l1flow_rl.envs import make_env
+from l1flow_rl.envs.registry import get_simulator
 
 __all__ = ["OnlineCollector", "round_stats", "single_frames"]
 
@@ -71,12 +75,6 @@ class OnlineCollector:
     """
 
     def __init__(self, cfg: DictConfig, actor: TensorDictModuleBase, device: torch.device) -> None:
-        from torchrl.collectors import Collector
-
-        from l1flow_rl.config import TaskConfig
-        from l1flow_rl.envs import make_env
-        from l1flow_rl.envs.registry import get_simulator
-
         ocfg = cfg.online
         frames = round_frames(cfg)
         if frames % ocfg.num_envs:

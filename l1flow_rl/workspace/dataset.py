@@ -10,16 +10,25 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from torchrl.data import TensorDictReplayBuffer
 
+from l1flow_rl.config.data import PADDING_RULES
+from l1flow_rl.data import (
+    EpisodeDataError,
+    action_pad_for,
+    episodes_metadata,
+    load_episodes,
+    make_chunk_buffer,
+)
+from l1flow_rl.data.loading import open_episode_file
+from l1flow_rl.envs import get_simulator
+from l1flow_rl.experts import ensure_demos
+from l1flow_rl.experts.cli import demo_options
+
 __all__ = ["chunk_padding", "load_task_episodes", "make_train_buffer", "resolve_dataset"]
 
 
 def resolve_dataset(cfg: DictConfig, rank: int = 0, world: int = 1) -> Path:
     """``data.path`` when given, else the expert's cached (or newly made) demonstrations. Only rank 0
     makes demonstrations; the others receive the path."""
-    from l1flow_rl.envs import get_simulator
-    from l1flow_rl.experts import ensure_demos
-    from l1flow_rl.experts.cli import demo_options
-
     if rank == 0:
         task = OmegaConf.to_object(cfg.task)
         if cfg.data.path:
@@ -43,10 +52,6 @@ def load_task_episodes(cfg: DictConfig, dataset: Path) -> TensorDictBase:
     """The dataset's episodes, checked against the task's control mode where the file records one
     (before anything is read). Image datasets stay memory-mapped on disk next to the
     demonstrations instead of in RAM."""
-    from l1flow_rl.data import EpisodeDataError, load_episodes
-    from l1flow_rl.data.loading import open_episode_file
-    from l1flow_rl.envs import get_simulator
-
     # the entries of the task's observation (robosuite: state_keys, cameras), where its simulator says
     select = get_simulator(cfg.task.simulator).reader_options
     options = dict(select(OmegaConf.to_object(cfg.task))) if select is not None else {}
@@ -73,9 +78,6 @@ def chunk_padding(cfg: DictConfig, episodes: TensorDictBase) -> dict:
     step is a window's current step), ``diffusion_policy`` at most K - 1 (K = ``policy.action_steps``;
     the To - 1 steps before the start are padded under both).
     """
-    from l1flow_rl.config.data import PADDING_RULES
-    from l1flow_rl.data import EpisodeDataError, action_pad_for, episodes_metadata
-
     meta = episodes_metadata(episodes)
     task_control = cfg.task.control
     if meta.control is not None and meta.control != task_control:
@@ -103,8 +105,6 @@ def chunk_padding(cfg: DictConfig, episodes: TensorDictBase) -> dict:
 
 def make_train_buffer(cfg: DictConfig, episodes: TensorDictBase, seed: int) -> TensorDictReplayBuffer:
     """The run's seeded chunk buffer, padded as :func:`chunk_padding` decides."""
-    from l1flow_rl.data import make_chunk_buffer
-
     pcfg, tcfg = cfg.policy, cfg.train
     return make_chunk_buffer(
         episodes,

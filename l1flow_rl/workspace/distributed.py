@@ -27,6 +27,8 @@ from typing import Any, TypeVar
 import torch
 import torch.distributed as dist
 
+from l1flow_rl.device import resolve_device  # re-exported: the jobs read device= through it
+
 __all__ = [
     "STATUS_TIMEOUT",
     "RankFailedError",
@@ -48,14 +50,6 @@ _status_group: Any = None
 
 class RankFailedError(RuntimeError):
     """Another rank failed; the message carries its error, and the traceback its traceback."""
-
-
-def resolve_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device={name!r} but CUDA is not available on this machine; use device=cpu")
-    return torch.device(name)
 
 
 def init_distributed(status_timeout: timedelta = STATUS_TIMEOUT) -> tuple[int, int]:

@@ -11,6 +11,10 @@ from typing import Any
 import torch
 from omegaconf import DictConfig
 
+from l1flow_rl.evaluation import evaluate
+from l1flow_rl.evaluation.plan import resolve_plan, task_from
+from l1flow_rl.workspace.logging import log_evaluation
+
 __all__ = ["PeriodicEvaluator"]
 
 
@@ -23,8 +27,6 @@ class PeriodicEvaluator:
     """
 
     def __init__(self, cfg: DictConfig, device: torch.device, logger: Any = None) -> None:
-        from l1flow_rl.evaluation.plan import resolve_plan, task_from
-
         self.cfg, self.device, self.env, self.logger = cfg, device, None, logger
         self.plan = resolve_plan(cfg, task_from(cfg.task), device)
 
@@ -34,9 +36,6 @@ class PeriodicEvaluator:
         return self.plan.headline
 
     def __call__(self, actor, step: int, video_dir: Path | None = None, split: str = "val") -> dict[str, Any]:
-        from l1flow_rl.evaluation import evaluate
-        from l1flow_rl.workspace.logging import log_evaluation
-
         episodes, seed = self.plan.split(split)
         ev = self.cfg.eval
         if split == "val" and ev.get("val_sampler"):  # the same network under a cheaper sampler

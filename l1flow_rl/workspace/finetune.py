@@ -29,8 +29,23 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from l1flow_rl.workspace.checkpoint import get_rng_state, load_checkpoint, save_checkpoint, set_rng_state
+from l1flow_rl.workspace.checkpoint import (
+    CheckpointMismatchError,
+    get_rng_state,
+    load_actor,
+    load_checkpoint,
+    save_checkpoint,
+    set_rng_state,
+)
+from l1flow_rl.workspace.collect import OnlineCollector, round_stats
+from l1flow_rl.workspace.dataset import load_task_episodes, resolve_dataset
+from l1flow_rl.workspace.distributed import resolve_device
+from l1flow_rl.workspace.evaluator import PeriodicEvaluator
+from l1flow_rl.workspace.flowq_trainer import FlowQTrainer, finetuned_policy_config
+from l1flow_rl.workspace.logging import make_logger
 from l1flow_rl.workspace.machine import machine_info
+from l1flow_rl.workspace.rl_data import RLBuffers
+from l1flow_rl.workspace.run_clock import RunClock
 
 __all__ = ["run_finetune"]
 
@@ -93,16 +108,12 @@ def _check_resume(saved: dict, current: dict, path: Path) -> None:
             if k not in _MAY_CHANGE and old.get(k) != new.get(k)
         ]
     if diffs:
-        from l1flow_rl.workspace.checkpoint import CheckpointMismatchError
-
         raise CheckpointMismatchError(
             f"resume=true: {str(path)!r} was made with another config:\n  " + "\n  ".join(diffs)
         )
 
 
 def _check_task(bc_cfg: DictConfig, cfg: DictConfig, path: str) -> None:
-    from l1flow_rl.workspace.checkpoint import CheckpointMismatchError
-
     fields = ("env_id", "obs_mode", "control_mode")
     diffs = [
         f"task.{f}: checkpoint has {bc_cfg.task.get(f)!r}, config asks for {cfg.task.get(f)!r}"
@@ -124,8 +135,6 @@ def _seed_everything(seed: int) -> None:
 
 def _dataset(cfg: DictConfig, bc_state: dict) -> Path:
     """``data.path``, else the BC run's own demonstrations, else the task's expert demonstrations."""
-    from l1flow_rl.workspace.dataset import resolve_dataset
-
     if cfg.data.path:
         return Path(cfg.data.path)
     saved = bc_state.get("dataset")
@@ -135,16 +144,8 @@ def _dataset(cfg: DictConfig, bc_state: dict) -> Path:
 
 
 def run_finetune(cfg: DictConfig) -> int:
+    # optional dependency (app extra): the progress bar
     from tqdm import tqdm
-
-    from l1flow_rl.workspace.checkpoint import load_actor
-    from l1flow_rl.workspace.dataset import load_task_episodes
-    from l1flow_rl.workspace.distributed import resolve_device
-    from l1flow_rl.workspace.evaluator import PeriodicEvaluator
-    from l1flow_rl.workspace.flowq_trainer import FlowQTrainer, finetuned_policy_config
-    from l1flow_rl.workspace.logging import make_logger
-    from l1flow_rl.workspace.rl_data import RLBuffers
-    from l1flow_rl.workspace.run_clock import RunClock
 
     if not cfg.checkpoint:
         print("l1flow-rl finetune: pass checkpoint=PATH (the L1 Flow BC checkpoint to fine-tune)")
@@ -326,8 +327,6 @@ def run_finetune(cfg: DictConfig) -> int:
     on = cfg.online
     clock.start("online")
     if progress["env_steps"] < on.steps:
-        from l1flow_rl.workspace.collect import OnlineCollector, round_stats
-
         bar = tqdm(total=on.steps, initial=progress["env_steps"], desc="online env steps", dynamic_ncols=True)
         with OnlineCollector(cfg, trainer.policy_actor, device) as collector:
             since_checkpoint, since_eval = 0, progress["env_steps"] % (on.eval_every or 1)
@@ -399,9 +398,11 @@ def run_finetune(cfg: DictConfig) -> int:
 
 def _plot(history: dict, evals: list, rounds: list, run_dir: Path) -> None:
     """``finetune.png``: Q statistics and BC distance against updates, success against env steps."""
+    # optional dependency (app extra): plots
     import matplotlib
 
     matplotlib.use("Agg")
+    # optional dependency (app extra): plots
     import matplotlib.pyplot as plt
 
     fig, (ax_q, ax_s) = plt.subplots(1, 2, figsize=(11, 3.8))

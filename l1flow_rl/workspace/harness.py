@@ -78,6 +78,7 @@ from l1flow_rl.workspace.checkpoint import (
     set_rng_state,
 )
 from l1flow_rl.workspace.distributed import run_on_every_rank, run_on_rank0
+from l1flow_rl.workspace.evaluator import PeriodicEvaluator
 from l1flow_rl.workspace.logging import make_logger
 from l1flow_rl.workspace.machine import machine_info
 from l1flow_rl.workspace.report import format_summary, save_history, save_plots
@@ -204,8 +205,6 @@ class Run:
                 "continue it, or choose another run_dir"
             )
         if self.cfg.eval.episodes > 0:
-            from l1flow_rl.workspace.evaluator import PeriodicEvaluator
-
             self.evaluator = PeriodicEvaluator(self.cfg, self.device)
             self._stack.callback(self.evaluator.close)
 
@@ -248,7 +247,7 @@ class Run:
             self._saved_step = step()
         self._prev_step = self._first_step = step()
         run_on_rank0(self._open_record, "writing config.yaml and opening the logger")
-        from tqdm import tqdm
+        from tqdm import tqdm  # the app extra (jobs run from the CLI); the core modules import without it
 
         self._bar = tqdm(
             total=total, initial=self._first_step, desc=self.job, disable=self.rank != 0, dynamic_ncols=True

@@ -7,6 +7,11 @@ import math
 from pathlib import Path
 from typing import Any
 
+from torchrl.record.loggers import get_logger
+
+from l1flow_rl.config.train import LOGGERS
+from l1flow_rl.evaluation.videos import log_videos
+
 __all__ = ["EVAL_SCALARS", "log_evaluation", "logger_kwargs", "make_logger"]
 
 #: scalars of an evaluation result that are logged besides its metrics (means and intervals)
@@ -26,8 +31,6 @@ def logger_kwargs(
     """Keyword arguments of TorchRL's ``get_logger`` for ``train.logger=kind``: logs under
     ``run_dir/logs``, named ``run_name`` (default: ``default_name``, the job's; on W&B the run
     directory's name); W&B also gets its project, group and the run's config."""
-    from l1flow_rl.config.train import LOGGERS
-
     if kind not in LOGGERS:
         raise ValueError(f"train.logger={kind!r}; expected one of {list(LOGGERS)}")
     kwargs: dict[str, Any] = {
@@ -46,8 +49,6 @@ def logger_kwargs(
 def make_logger(kind: str, run_dir: Path, state: dict | None, **options: Any):
     """The run's logger; ``state`` (a saved ``logger.state_dict()``) resumes it. ``options`` are
     :func:`logger_kwargs`' (project, group, run_name, default_name, config)."""
-    from torchrl.record.loggers import get_logger
-
     kwargs = logger_kwargs(kind, run_dir, **options)
     return get_logger(kwargs.pop("logger_type"), state_dict=state, **kwargs)
 
@@ -55,8 +56,6 @@ def make_logger(kind: str, run_dir: Path, state: dict | None, **options: Any):
 def log_evaluation(logger: Any, result: dict[str, Any], step: int, prefix: str) -> list[str]:
     """Log every metric of an evaluation result as ``{prefix}/{name}`` with ``{prefix}/{name}_ci95_low``
     and ``_high``, the scalars in :data:`EVAL_SCALARS`, and its videos. Returns the names logged."""
-    from l1flow_rl.evaluation.videos import log_videos
-
     logged = []
 
     def scalar(name: str, value: Any) -> None:

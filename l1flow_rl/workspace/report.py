@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -13,9 +14,11 @@ def save_plots(
     history: Mapping[str, Sequence[float]], evals: Sequence[Mapping[str, Any]], run_dir: Path
 ) -> list[Path]:
     """``loss.png`` (training loss and LR against step) and ``success.png`` (eval success against step)."""
+    # optional dependency (app extra): plots
     import matplotlib
 
     matplotlib.use("Agg")
+    # optional dependency (app extra): plots
     import matplotlib.pyplot as plt
 
     written = []
@@ -60,8 +63,6 @@ def save_history(
 ) -> Path:
     """``history.json``: the logged training curve, every evaluation during training (what
     ``benchmarks/`` reads for convergence curves) and the job's other ``records`` (e.g. rounds)."""
-    import json
-
     path = run_dir / "history.json"
     body = {"train": dict(history), "evals": list(evals), **{k: list(v) for k, v in records.items()}}
     path.write_text(json.dumps(body, indent=1) + "\n")

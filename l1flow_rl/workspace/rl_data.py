@@ -20,7 +20,10 @@ from tensordict import TensorDictBase
 from torchrl.data import OfflineToOnlineReplayBuffer, TensorDictReplayBuffer
 
 from l1flow_rl.config.finetune import REWARD_KEYS, round_frames
+from l1flow_rl.data import make_chunk_buffer
+from l1flow_rl.data.online import CORE_KEYS
 from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
+from l1flow_rl.workspace.dataset import chunk_padding
 
 __all__ = ["ChunkOfflineToOnlineBuffer", "RLBuffers"]
 
@@ -71,10 +74,6 @@ class RLBuffers:
     """
 
     def __init__(self, cfg: DictConfig, episodes: TensorDictBase, rl_horizon: int, seed: int) -> None:
-        from l1flow_rl.data import make_chunk_buffer
-        from l1flow_rl.data.online import CORE_KEYS
-        from l1flow_rl.workspace.dataset import chunk_padding
-
         ocfg = cfg.online
         if ocfg.mixing not in MIXING:
             raise ValueError(f"online.mixing={ocfg.mixing!r}; expected one of {MIXING}")

@@ -25,6 +25,7 @@ def process_cpu_seconds() -> float:
     with the children it reaped: a forkserver (how ParallelEnv starts robosuite and PushT workers)
     reaps the workers it forks, so ``RUSAGE_CHILDREN`` alone misses their time.
     """
+    # optional dependency (app extra): CPU accounting of worker processes
     import psutil
 
     own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)

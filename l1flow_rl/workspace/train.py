@@ -15,8 +15,10 @@ from typing import Any
 import torch
 from omegaconf import DictConfig
 
+from l1flow_rl.data import fit_normalizers
 from l1flow_rl.workspace.build import build_actor, build_loss
 from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
+from l1flow_rl.workspace.dataset import load_task_episodes, make_train_buffer, resolve_dataset
 from l1flow_rl.workspace.distributed import init_distributed, resolve_device, run_on_every_rank, run_on_rank0
 from l1flow_rl.workspace.harness import Run
 from l1flow_rl.workspace.trainer import Trainer
@@ -52,9 +54,6 @@ def _device(cfg: DictConfig, world: int) -> torch.device:
 
 def run_train(cfg: DictConfig) -> int:
     """Train ``cfg.policy`` on ``cfg.task``'s demonstrations; rank 0 evaluates and reports."""
-    from l1flow_rl.data import fit_normalizers
-    from l1flow_rl.workspace.dataset import load_task_episodes, make_train_buffer, resolve_dataset
-
     rank, world = init_distributed()
     device, tcfg, pcfg = _device(cfg, world), cfg.train, cfg.policy
     harness = Run(

@@ -22,6 +22,7 @@ from torchrl.objectives import LossModule
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.ema import make_ema
 from l1flow_rl.value_checks import skip_value_checks
+from l1flow_rl.workspace.checkpoint import load_state_into
 
 __all__ = ["Trainer", "warmup_cosine"]
 
@@ -155,8 +156,6 @@ class Trainer:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        from l1flow_rl.workspace.checkpoint import load_state_into
-
         load_state_into(self.actor, state["model"])
         load_state_into(self.ema_actor, state["ema"])
         self.ema.n_averaged.copy_(state["ema_n_averaged"])

@@ -58,6 +58,7 @@ class DiffusionPolicyZarr(EpisodeFile):
         action_key: str = "action",
     ) -> None:
         super().__init__(path)
+        # optional dependency (pusht extra): Diffusion Policy's zarr stores
         import zarr
 
         try:

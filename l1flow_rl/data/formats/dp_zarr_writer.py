@@ -41,6 +41,7 @@ def write_dp_zarr(
         >>> write_dp_zarr("/tmp/doc_example.zarr", [ep, ep]).name  # doctest: +SKIP
         'doc_example.zarr'
     """
+    # optional dependency (pusht extra): Diffusion Policy's zarr stores
     import zarr
 
     path = Path(path)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import torch
 from tensordict import TensorDict
+from torchrl.data.datasets.lerobot import LeRobotExperienceReplay
 
 from l1flow_rl.data.episodes import (
     EpisodeDataError,
@@ -56,7 +57,6 @@ class LeRobotDirectory(EpisodeFile):
                 "root=ROOT, download=True) on a machine with huggingface_hub and datasets, then load "
                 "ROOT/<repo_id>"
             )
-        from torchrl.data.datasets.lerobot import LeRobotExperienceReplay
 
         try:
             replay = LeRobotExperienceReplay(path.name, root=path.parent, download=False, decode_video=False)

@@ -31,6 +31,7 @@ from l1flow_rl.data.episodes import (
 )
 from l1flow_rl.data.formats.base import EpisodeFile, open_h5
 from l1flow_rl.data.metadata import control_of
+from l1flow_rl.envs.maniskill.obs import flatten_maniskill_obs
 
 __all__ = ["ManiSkillFile"]
 
@@ -130,8 +131,6 @@ class ManiSkillFile(EpisodeFile):
             final = full[steps] if full.shape[0] > steps else None
             check_finite(full.float(), self.path, episode, key)
             return obs.float(), None if final is None else final.float()
-        from l1flow_rl.envs.maniskill.obs import flatten_maniskill_obs
-
         wanted = {g: node[g] for g in ("agent", "extra", "sensor_data") if g in node}
         raw = _read_group(wanted, self.path, episode, key)
         try:

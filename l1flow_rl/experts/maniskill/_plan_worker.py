@@ -39,6 +39,7 @@ def _on_alarm(signum, frame):  # pragma: no cover - only fires on a stuck planne
 
 
 def _plan(env_id: str, work_dir: Path, first_seed: int, num_seeds: int, attempt_timeout: int) -> int:
+    # optional dependency: the simulator and its planner (maniskill extra)
     import gymnasium as gym
     import mani_skill.envs  # noqa: F401  (registers the tasks)
     from mani_skill.examples.motionplanning.panda.run import MP_SOLUTIONS
@@ -97,6 +98,7 @@ def _plan(env_id: str, work_dir: Path, first_seed: int, num_seeds: int, attempt_
 
 
 def _replay(work_dir: Path, obs_mode: str, control_mode: str, reward_mode: str) -> None:
+    # optional dependency: the simulator (maniskill extra)
     from mani_skill.trajectory import replay_trajectory
 
     argv = [

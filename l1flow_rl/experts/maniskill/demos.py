@@ -390,6 +390,7 @@ def ensure_maniskill_demos(
     if target.is_file() and target.with_suffix(".json").is_file():
         return target
     gen = _Generator(task, data_dir, attempt_timeout)
+    # optional dependency (app extra): the progress bar
     from tqdm import tqdm
 
     with (

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from l1flow_rl.data.formats.dp_zarr_writer import write_dp_zarr
 from l1flow_rl.experts.pusht.episode import Demo, run_episode
 from l1flow_rl.experts.registry import DemoGenerationError
 
@@ -74,6 +75,7 @@ def run_episodes(
     job = partial(_worker, images=images, image_size=image_size, max_steps=max_steps)
     bar = None
     if progress:
+        # optional dependency (app extra): the progress bar
         from tqdm import tqdm
 
         bar = tqdm(total=len(seeds), desc=desc, unit="episode", dynamic_ncols=True)
@@ -117,8 +119,6 @@ def ensure_pusht_demos(
 
     Raises :class:`DemoGenerationError` when more than ``max_failure_rate`` of a round's seeds fail.
     """
-    from l1flow_rl.data.formats.dp_zarr_writer import write_dp_zarr
-
     if num < 1:
         raise ValueError(f"demos.num must be >= 1, got {num}")
     path = demo_path(task, num, data_dir, seed)

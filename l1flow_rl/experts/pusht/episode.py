@@ -4,11 +4,13 @@ layout records. Runs in a demo worker process (or in-process for tests)."""
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from l1flow_rl.envs.pusht.geometry import block_keypoints, reset_state_for
+from l1flow_rl.experts.pusht.planner import PushTPlanner
 
 __all__ = ["Demo", "run_episode", "start_state"]
 
@@ -35,6 +37,7 @@ class Demo:
 
 def _make_env(images: bool, image_size: int, max_steps: int):
     os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+    # optional dependency: the simulator's gymnasium API
     import gym_pusht  # noqa: F401
     import gymnasium as gym
 
@@ -78,10 +81,6 @@ def run_episode(
 
     Actions are rounded to float32 before they are executed, so that replaying the stored actions
     from the stored first state reproduces the episode bit for bit."""
-    import time
-
-    from l1flow_rl.experts.pusht.planner import PushTPlanner
-
     start = time.perf_counter()
     env = _make_env(images, image_size, max_steps)
     try:

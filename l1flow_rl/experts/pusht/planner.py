@@ -92,6 +92,7 @@ class PushTPlanner:
     # -- scratch physics ------------------------------------------------------------------------
 
     def _scratch(self, agent: np.ndarray, velocity: np.ndarray, pose: np.ndarray):
+        # optional dependency: the simulator (pusht extra)
         import pymunk
         from gym_pusht.envs.pusht import PushTEnv
 
@@ -132,6 +133,7 @@ class PushTPlanner:
     def _clear(self, a: np.ndarray, b: np.ndarray, pose: np.ndarray, clearance: float | None = None) -> bool:
         """Whether the agent can move from a to b keeping ``clearance`` (default: radius + margin / 2)
         between its centre and the block."""
+        # optional dependency: gym-pusht's geometry (pusht extra)
         from shapely.geometry import LineString, Polygon
 
         clearance = AGENT_RADIUS + self.margin * 0.5 if clearance is None else clearance

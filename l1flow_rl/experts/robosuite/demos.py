@@ -16,8 +16,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from l1flow_rl.config import TaskConfig
+from l1flow_rl.envs.robosuite import sim
+from l1flow_rl.envs.robosuite.pool import worker_pool
 from l1flow_rl.experts.registry import DemoGenerationError
 from l1flow_rl.experts.robosuite.scripted import EXPERT_TASKS, make_expert
 
@@ -38,8 +41,6 @@ def run_episode(env, task: TaskConfig, seed: int, max_steps: int | None = None) 
     """One scripted episode from the scene of ``seed``; the robomimic demo dict, or None when the
     expert failed. The episode runs 1-3 steps past its first success (while success holds), so
     that its last stored state (the one before the last action) is a success state too."""
-    from l1flow_rl.envs.robosuite import sim
-
     max_steps = max_steps or task.max_episode_steps
     sim.seed_episode(env, seed)
     raw = env.reset()
@@ -87,10 +88,6 @@ _WORKER: dict = {}
 
 
 def _worker_init(task: TaskConfig) -> None:
-    import torch
-
-    from l1flow_rl.envs.robosuite import sim
-
     torch.set_num_threads(1)
     _WORKER["task"] = task
     _WORKER["env"] = sim.make_from_env_args(sim.env_args_for_task(task, cameras=[]), source=task.name)
@@ -122,6 +119,7 @@ def generate(
     progress: bool = True,
 ) -> tuple[list[dict], dict]:
     """``num`` successful demos (in seed order) and statistics (attempts, successes, seconds)."""
+    # optional dependency (app extra): the progress bar
     from tqdm import tqdm
 
     task = dataclasses.replace(task, obs_mode="state", cameras=[])
@@ -129,8 +127,6 @@ def generate(
     durations: list[float] = []
     next_seed = seed
     bar = tqdm(total=num, desc=f"{task.env_id} demos", unit="demo", disable=not progress)
-    from l1flow_rl.envs.robosuite.pool import worker_pool
-
     with worker_pool(workers, _worker_init, (task,)) as pool:
         pending: set[cf.Future] = set()
         while True:
@@ -180,8 +176,8 @@ def ensure_robosuite_demos(
 ) -> Path:
     """The robomimic file of ``num`` scripted demonstrations of ``task`` under ``data_dir`` (made
     when missing; an image task's observations are regenerated from the states with its cameras)."""
+    # optional dependency: the writer imports h5py
     from l1flow_rl.data.formats.robomimic_writer import RobomimicWriter
-    from l1flow_rl.envs.robosuite import sim
 
     if task.env_id not in EXPERT_TASKS:
         raise DemoGenerationError(
@@ -214,6 +210,7 @@ def ensure_robosuite_demos(
             )
     if low_dim == target:
         return target
+    # optional dependency: the module imports h5py
     from l1flow_rl.envs.robosuite.regenerate import regenerate_observations
 
     return regenerate_observations(

@@ -8,7 +8,7 @@ not an encoder: it resolves to ``resnet18_gn`` when the observation holds an ima
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,6 +18,7 @@ __all__ = [
     "AUTO",
     "EncoderSpec",
     "encoder_names",
+    "encoder_problems",
     "get_encoder",
     "make_encoder",
     "register_encoder",
@@ -79,15 +80,33 @@ def get_encoder(name: str) -> EncoderSpec:
         ) from None
 
 
+def encoder_problems(name: str, images: Sequence[str]) -> list[str]:
+    """Why encoder ``name`` (or ``auto``) cannot encode an observation whose image entries are
+    ``images``: an unknown name, or a flat-only encoder given images. Empty when it can.
+
+    Example:
+        >>> encoder_problems("state", ["rgb"])  # doctest: +ELLIPSIS
+        ["encoder.name='state' reads flat vectors only, but the observation has image entries ['rgb']; ..."]
+    """
+    try:
+        spec = get_encoder(resolve_encoder_name(name, bool(images)))
+    except ValueError as err:
+        return [str(err)]
+    if images and not spec.images:
+        return [
+            f"encoder.name={spec.name!r} reads flat vectors only, but the observation has image entries "
+            f"{list(images)}; use an image encoder (encoder=auto or encoder=resnet18_gn)"
+        ]
+    return []
+
+
 def make_encoder(
     name: str, obs_shapes: Mapping[str, tuple[int, ...]], options: Mapping[str, Any] | None = None
 ) -> ObservationEncoder:
     """Build the encoder ``name`` (or ``auto``) for the observation entries ``obs_shapes``."""
     images = image_entries(obs_shapes)
+    problems = encoder_problems(name, images)
+    if problems:
+        raise ValueError(problems[0])
     spec = get_encoder(resolve_encoder_name(name, bool(images)))
-    if images and not spec.images:
-        raise ValueError(
-            f"encoder.name={spec.name!r} encodes flat entries only, but the observation has image entries "
-            f"{images}; use encoder=resnet18_gn (or encoder=auto)"
-        )
     return spec.build(dict(obs_shapes), dict(options or {}))

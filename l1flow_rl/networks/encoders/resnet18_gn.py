@@ -131,6 +131,7 @@ def load_torchvision_resnet18(
     where = str(source) if isinstance(source, (str, os.PathLike)) else "the given state_dict"
     if isinstance(source, (str, os.PathLike)):
         if str(source).endswith(".safetensors"):
+            # optional dependency: reading .safetensors weights
             from safetensors.torch import load_file
 
             weights: Mapping[str, Tensor] = load_file(str(source))
