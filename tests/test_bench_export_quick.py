@@ -22,3 +22,21 @@ def test_bench_export_latency_quick_writes_ratios_and_matches(tmp_path):
     assert all(row["wall_ms"] > 0 and row["ratio_to_eager_actor"] > 0 for row in paths.values())
     assert paths["exported"]["max_abs_diff_from_eager"] == 0.0
     assert paths["onnxruntime"]["max_abs_diff_from_eager"] < 1e-4
+
+
+def test_the_saved_figures_render_one_row_per_path():
+    from pathlib import Path
+
+    from benchmarks.export_report import render_export_latency
+
+    data = json.loads(
+        (Path(__file__).parents[1] / "benchmarks" / "results" / "export_latency.json").read_text()
+    )
+    text = render_export_latency(data)
+    for network, block in data["networks"].items():
+        assert f"**{network} network**" in text
+        assert sum(
+            line.startswith("| ")
+            for line in text.split(f"**{network} network**")[1].split("**")[0].splitlines()
+        ) == (len(block["paths"]) + 1)
+    assert "| `torch.export` program (`policy.pt2`) |" in text
