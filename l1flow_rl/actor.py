@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from tensordict import TensorDictBase
@@ -170,3 +172,18 @@ class L1FlowActor(TensorDictModule):
             down_dims=down_dims,
             **kwargs,
         )
+
+    # -- a folder others can load (l1flow_rl.pretrained) -----------------------------------------
+    def save_pretrained(self, path: str | os.PathLike, **kwargs: Any) -> Path:
+        """Write this actor as a pretrained folder (config.json, model.safetensors,
+        normalizer.safetensors); keyword arguments as :func:`l1flow_rl.pretrained.save_pretrained`."""
+        from l1flow_rl.pretrained import save_pretrained
+
+        return save_pretrained(self, path, **kwargs)
+
+    @classmethod
+    def from_pretrained(cls, path: str | os.PathLike, map_location: str | Any = "cpu") -> L1FlowActor:
+        """The actor a pretrained folder holds, rebuilt from its config.json alone (no hydra config)."""
+        from l1flow_rl.pretrained import load_pretrained
+
+        return load_pretrained(path, map_location)

@@ -70,6 +70,11 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
         "make demonstrations with the task's expert into data_dir",
     ),
     "toy": ("l1flow_rl.toy", "run_toy", "the multi-modality demonstration (paper Fig. 2): toy.png, toy.json"),
+    "export": (
+        "l1flow_rl.export_cli",
+        "run_export",
+        "a checkpoint as a pretrained folder (config.json, model.safetensors; program=true: policy.pt2)",
+    ),
     "finetune": (
         "l1flow_rl.workspace.finetune",
         "run_finetune",
@@ -85,6 +90,7 @@ RUN_DIRS: dict[str, str] = {
     "demos": "runs/demos",
     "toy": "runs/toy",
     "finetune": "runs/finetune",
+    "export": "runs/export",
 }
 
 _CONFIG_NAME = "config"

@@ -136,14 +136,23 @@ class ChunkPolicy(nn.Module):
         *,
         deterministic: bool = False,
         generator: torch.Generator | None = None,
+        noise: Tensor | None = None,
     ) -> Tensor:
-        """Full predicted chunk [*B, H, A] in environment units."""
+        """Full predicted chunk [*B, H, A] in environment units. ``noise`` [*B, H, A], when given, is the
+        starting point instead of a fresh draw (reproducible chunks; what an exported program takes)."""
         batch = self.batch_dims(observation)
         obs = self.as_obs_dict(observation)
         cond = self.encode(obs)  # once per chunk, shared by every network call
         n = cond.shape[0]
         shape = (n, self.pred_horizon, self.action_dim)
-        if deterministic:
+        if noise is not None:
+            if tuple(noise.shape) != (*batch, self.pred_horizon, self.action_dim):
+                raise ValueError(
+                    f"noise must have shape [*B, pred_horizon, action_dim] = "
+                    f"{[*batch, self.pred_horizon, self.action_dim]}, got {list(noise.shape)}"
+                )
+            x_init = noise.reshape(shape).to(device=cond.device, dtype=cond.dtype)
+        elif deterministic:
             x_init = torch.zeros(shape, device=cond.device, dtype=cond.dtype)
         else:
             x_init = torch.randn(shape, device=cond.device, dtype=cond.dtype, generator=generator)
@@ -157,12 +166,18 @@ class ChunkPolicy(nn.Module):
         start = self.obs_horizon - 1
         return chunk[..., start : start + self.action_steps, :]
 
-    def forward(self, observation: Tensor | TensorDictBase, deterministic: bool | None = None) -> Tensor:
+    def forward(
+        self,
+        observation: Tensor | TensorDictBase,
+        deterministic: bool | None = None,
+        noise: Tensor | None = None,
+    ) -> Tensor:
         """Executable window [*B, K, A]. ``deterministic=None`` follows TensorDict's interaction type:
-        DETERMINISTIC (and MODE) start from zero noise, anything else samples."""
+        DETERMINISTIC (and MODE) start from zero noise, anything else samples; ``noise`` [*B, H, A]
+        given starts from it."""
         if deterministic is None:
             deterministic = interaction_type() in (InteractionType.DETERMINISTIC, InteractionType.MODE)
-        return self.executable(self.sample_chunk(observation, deterministic=deterministic))
+        return self.executable(self.sample_chunk(observation, deterministic=deterministic, noise=noise))
 
     def batch_dims(self, observation: Tensor | TensorDictBase) -> tuple[int, ...]:
         """The leading batch dims [*B] of an observation [*B, To, ...]."""

@@ -10,11 +10,13 @@ import pytest
 MODULES = [
     "l1flow_rl.actor",
     "l1flow_rl.ema",
+    "l1flow_rl.export",
     "l1flow_rl.flow.time",
     "l1flow_rl.objectives.diffusion",
     "l1flow_rl.objectives.flow_matching",
     "l1flow_rl.objectives.l1flow",
     "l1flow_rl.objectives.regression",
+    "l1flow_rl.pretrained",
 ]
 
 

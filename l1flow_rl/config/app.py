@@ -35,6 +35,11 @@ class AppConfig:
     # None: the run's own directory (hydra.run.dir, unique per run; see l1flow_rl.cli)
     run_dir: str | None = None
     checkpoint: str | None = None
+    # l1flow-rl export: the pretrained folder to write, and whether it also gets the torch.export
+    # program (policy.pt2) and the ONNX model (policy.onnx) of the 2-NFE call
+    out: str | None = None
+    program: bool = False
+    onnx: bool = False
     resume: bool = False
     seed: int = 0
     device: str = "auto"  # auto | cpu | cuda

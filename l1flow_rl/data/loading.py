@@ -5,7 +5,9 @@ Supported (detected from the content, not the name):
 * ManiSkill ``.h5`` with its ``.json`` (options: ``control_mode`` to check, ``camera``);
 * robomimic / robosuite ``.hdf5`` (``state_keys``, ``image_key``);
 * Diffusion Policy zarr replay buffers, a ``.zarr`` directory (``state_keys``, ``image_key``, ``action_key``);
-* a LeRobot dataset as TorchRL's ``LeRobotExperienceReplay`` stores it on disk (``camera``).
+* a LeRobot dataset as TorchRL's ``LeRobotExperienceReplay`` stores it on disk (``camera``);
+* a LeRobot v3.0 dataset folder (``meta/info.json``, parquet, mp4; ``cameras``), see
+  :mod:`l1flow_rl.data.formats.lerobot_v3`.
 
 With ``memmap_dir`` the episodes stream one at a time into a TorchRL ``LazyMemmapStorage`` under that
 directory, so data larger than RAM loads; opening the same source again reuses the stored copy.
@@ -55,6 +57,7 @@ def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
         from l1flow_rl.data.formats.base import open_h5
         from l1flow_rl.data.formats.dp_zarr import DiffusionPolicyZarr
         from l1flow_rl.data.formats.lerobot import LeRobotDirectory, is_raw_lerobot, is_torchrl_lerobot
+        from l1flow_rl.data.formats.lerobot_v3 import LeRobotV3Directory
         from l1flow_rl.data.formats.maniskill import ManiSkillFile
         from l1flow_rl.data.formats.robomimic import RobomimicFile
     except ImportError as err:
@@ -66,14 +69,17 @@ def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
     if not path.exists():
         raise EpisodeDataError(f"{path}: no such file or directory")
     if path.is_dir():
-        if is_torchrl_lerobot(path) or is_raw_lerobot(path):
+        if is_torchrl_lerobot(path):
             reader = LeRobotDirectory
+        elif is_raw_lerobot(path):  # meta/info.json: LeRobot's own layout (v3.0; older ones refused)
+            reader = LeRobotV3Directory
         elif _is_zarr(path):
             reader = DiffusionPolicyZarr
         else:
             raise EpisodeDataError(
                 f"{path}: a directory that is neither a zarr store nor a LeRobot dataset; supported: "
-                "ManiSkill .h5+.json, robomimic .hdf5, Diffusion Policy .zarr, LeRobot (TorchRL copy)"
+                "ManiSkill .h5+.json, robomimic .hdf5, Diffusion Policy .zarr, LeRobot v3.0 folder, LeRobot "
+                "(TorchRL copy)"
             )
     elif h5py.is_hdf5(path):
         with open_h5(path) as f:

@@ -13,6 +13,7 @@ from l1flow_rl.device import resolve_device
 from l1flow_rl.evaluation.evaluator import evaluate, sampler_record
 from l1flow_rl.evaluation.plan import resolve_plan, task_from
 from l1flow_rl.evaluation.rescore import eval_sampler
+from l1flow_rl.pretrained import CONFIG_FILE, load_pretrained_for_eval
 from l1flow_rl.workspace.checkpoint import load_actor
 from l1flow_rl.workspace.report import format_summary
 
@@ -42,10 +43,16 @@ def run_eval(cfg: DictConfig) -> int:
     """``l1flow-rl eval checkpoint=PATH [policy.sampler=... policy.sampler_kwargs.k=v]
     [eval.protocol=NAME] [eval.episodes=N] run_dir=DIR``: writes DIR/eval.json (test seeds)."""
     if not cfg.checkpoint:
-        print("l1flow-rl eval: pass checkpoint=PATH (a .pt file, or a run's checkpoints/ folder)")
+        print(
+            "l1flow-rl eval: pass checkpoint=PATH (a .pt file, a run's checkpoints/ folder, or a pretrained "
+            "folder written by l1flow-rl export)"
+        )
         return 2
     device = resolve_device(cfg.device)
-    actor, train_cfg = load_actor(cfg.checkpoint, use_ema=True, map_location=device)
+    if (Path(cfg.checkpoint) / CONFIG_FILE).is_file():  # a pretrained folder (l1flow_rl.pretrained)
+        actor, train_cfg = load_pretrained_for_eval(cfg.checkpoint, map_location=device)
+    else:
+        actor, train_cfg = load_actor(cfg.checkpoint, use_ema=True, map_location=device)
     trained = sampler_record(actor)
     name, kwargs = eval_sampler(train_cfg.policy, cfg.policy)
     if (name, kwargs) != (train_cfg.policy.sampler, dict(train_cfg.policy.sampler_kwargs or {})):

@@ -2,10 +2,10 @@
 
 TorchRL serves a LeRobot dataset offline from its converted, memory-mapped copy
 (``LeRobotExperienceReplay(repo_id, root=ROOT, download=False)`` reads ``ROOT/<repo_id>``), which is
-what this reader opens: pass that directory. The raw hub layout (``meta/info.json`` plus parquet
-files) needs ``pyarrow``/``datasets`` to read, and neither is a dependency here, so such a directory
-gets an error that says how to convert it. Video-encoded cameras need ``torchcodec`` to decode and
-are refused for the same reason; cameras stored as frames work. LeRobot keeps no observation after
+what this reader opens: pass that directory. LeRobot's own layout (``meta/info.json`` plus parquet
+files) is read by :mod:`l1flow_rl.data.formats.lerobot_v3`. Here, video-encoded cameras would need
+``torchcodec`` (TorchRL's decoder), which is not installed, and are refused; cameras stored as frames
+work. LeRobot keeps no observation after
 an episode's last action, and its control kind is not recorded (the task config decides).
 """
 
@@ -52,10 +52,8 @@ class LeRobotDirectory(EpisodeFile):
         super().__init__(path)
         if is_raw_lerobot(path):
             raise EpisodeDataError(
-                f"{path}: a raw LeRobot dataset (parquet files). Reading parquet needs pyarrow, which is "
-                "not installed here; convert it once with torchrl's LeRobotExperienceReplay(repo_id, "
-                "root=ROOT, download=True) on a machine with huggingface_hub and datasets, then load "
-                "ROOT/<repo_id>"
+                f"{path}: LeRobot's own layout (meta/info.json), not TorchRL's copy; read it with "
+                "l1flow_rl.data.formats.lerobot_v3.LeRobotV3Directory (load_episodes picks it)"
             )
 
         try:

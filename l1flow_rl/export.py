@@ -1,0 +1,166 @@
+"""The whole policy call as one self-contained program: ``torch.export`` (and ONNX where it works).
+
+:class:`DeployablePolicy` is the call a robot makes: observation history and starting noise in,
+executable actions out. Observations are normalised inside, the sampler's network calls (2 for L1
+Flow) are unrolled inside, actions are un-normalised inside, so the program is the whole policy and
+needs neither this library nor TensorDict to run::
+
+    program = torch.export.load("policy/policy.pt2").module()
+    actions = program(observation, noise)          # [B, K, A], environment units
+
+The noise is an input so that a chunk is reproducible (zeros give the deterministic chunk). Inputs are
+the observation entries in the order of config.json's ``program.inputs`` (one tensor for a state
+policy: [B, To, D] float32; images are uint8 [B, To, 3, H, W]), then the noise [B, H, A]; the batch
+size is dynamic.
+
+ONNX: :func:`export_onnx` uses the dynamo exporter (``torch.onnx.export(..., dynamo=True)``, which
+needs ``onnxscript``) on the same module.
+
+Example:
+    >>> import torch
+    >>> from l1flow_rl import L1FlowActor
+    >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32)).eval()
+    >>> program = torch.export.export(DeployablePolicy(actor), example_inputs(actor), strict=False)
+    >>> obs, noise = torch.randn(1, 2, 5), torch.randn(1, 16, 2)
+    >>> torch.allclose(program.module()(obs, noise), actor.policy(obs, noise=noise), atol=1e-5)
+    True
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import torch
+from tensordict import TensorDict
+from torch import Tensor, nn
+
+if TYPE_CHECKING:
+    from l1flow_rl.actor import L1FlowActor
+
+__all__ = [
+    "ONNX_FILE",
+    "PROGRAM_FILE",
+    "DeployablePolicy",
+    "example_inputs",
+    "export_onnx",
+    "export_program",
+    "load_program",
+    "program_description",
+]
+
+PROGRAM_FILE = "policy.pt2"
+ONNX_FILE = "policy.onnx"
+
+
+class DeployablePolicy(nn.Module):
+    """``forward(*entries, noise) -> actions [B, K, A]``: one actor's whole 2-NFE call on plain tensors.
+
+    ``entries`` are the observation entries [B, To, ...] in :attr:`entry_names` order. The module shares
+    the actor's weights; put the actor in eval mode first (image crops are centre crops then).
+    """
+
+    def __init__(self, actor: L1FlowActor) -> None:
+        super().__init__()
+        self.policy = actor.policy
+        self.entry_names = list(self.policy.encoder.obs_shapes)
+
+    def forward(self, *inputs: Tensor) -> Tensor:
+        *entries, noise = inputs
+        p = self.policy
+        n = noise.shape[0]
+        obs = TensorDict(dict(zip(self.entry_names, entries)), batch_size=[n, p.obs_horizon])
+        cond = p.encode(obs)
+        chunk = p.sampler(lambda x, t: p.denoise(x, t, cond), noise.to(cond.dtype))
+        return p.executable(p.action_normalizer.unnormalize(chunk))
+
+
+def example_inputs(actor: L1FlowActor, batch: int = 1) -> tuple[Tensor, ...]:
+    """Zero observations (uint8 images, float entries) and zero noise of the shapes the actor takes."""
+    p = actor.policy
+    device = next(p.net.parameters()).device
+    entries = [
+        torch.zeros(
+            batch, p.obs_horizon, *shape, dtype=torch.uint8 if len(shape) == 3 else p.dtype, device=device
+        )
+        for shape in p.encoder.obs_shapes.values()
+    ]
+    return (*entries, torch.zeros(batch, p.pred_horizon, p.action_dim, dtype=p.dtype, device=device))
+
+
+def _dynamic_batch(actor: L1FlowActor) -> tuple[tuple[dict[int, Any], ...]]:
+    """Dim 0 of every input is the batch (one spec per input, inside the ``*inputs`` tuple)."""
+    batch = torch.export.Dim("batch", min=1, max=4096)
+    return (tuple({0: batch} for _ in range(len(actor.policy.encoder.obs_shapes) + 1)),)
+
+
+def export_program(actor: L1FlowActor, path: str | os.PathLike | None = None) -> torch.export.ExportedProgram:
+    """``torch.export`` of :class:`DeployablePolicy` (batch size dynamic), saved to ``path`` when given.
+
+    Exported non-strict: TensorDict glue runs as Python while tracing and leaves only tensor ops."""
+    module = DeployablePolicy(actor).eval()
+    with torch.no_grad():
+        program = torch.export.export(
+            module, example_inputs(actor, batch=2), dynamic_shapes=_dynamic_batch(actor), strict=False
+        )
+    if path is not None:
+        torch.export.save(program, str(path))
+    return program
+
+
+def load_program(path: str | os.PathLike) -> nn.Module:
+    """The callable saved by :func:`export_program`: ``program(*entries, noise) -> actions``."""
+    return torch.export.load(str(path)).module()
+
+
+def program_description(actor: L1FlowActor) -> dict[str, Any]:
+    """What config.json says about the program: its file, its inputs in order, its output."""
+    p = actor.policy
+    inputs = [
+        {
+            "name": k,
+            "shape": ["batch", p.obs_horizon, *s],
+            "dtype": "uint8" if len(s) == 3 else str(p.dtype).removeprefix("torch."),
+        }
+        for k, s in p.encoder.obs_shapes.items()
+    ]
+    inputs.append(
+        {
+            "name": "noise",
+            "shape": ["batch", p.pred_horizon, p.action_dim],
+            "dtype": str(p.dtype).removeprefix("torch."),
+        }
+    )
+    return {
+        "file": PROGRAM_FILE,
+        "inputs": inputs,
+        "output": {"name": "actions", "shape": ["batch", p.action_steps, p.action_dim]},
+        "torch_version": torch.__version__,
+    }
+
+
+def export_onnx(actor: L1FlowActor, path: str | os.PathLike) -> Path:
+    """The same call as an ONNX model (dynamo exporter, opset of the installed torch), batch dynamic.
+
+    Needs ``onnx`` and ``onnxscript`` (``pip install 'l1flow-rl[export]'``)."""
+    try:
+        import onnxscript  # noqa: F401  (the dynamo exporter imports it; fail here with the fix)
+    except ImportError as err:
+        raise ImportError(
+            f"ONNX export needs {err.name}, which is not installed: pip install 'l1flow-rl[export]'"
+        ) from err
+    module = DeployablePolicy(actor).eval()
+    names = [*module.entry_names, "noise"]
+    with torch.no_grad():
+        onnx_program = torch.onnx.export(
+            module,
+            example_inputs(actor, batch=2),
+            dynamo=True,
+            input_names=names,
+            output_names=["actions"],
+            dynamic_shapes=_dynamic_batch(actor),
+        )
+    path = Path(path)
+    onnx_program.save(str(path))
+    return path
