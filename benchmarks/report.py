@@ -23,6 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from benchmarks.export_report import render_export_latency
 from benchmarks.sweep import convergence_steps
 from l1flow_rl.workspace.run_clock import CPU_SCOPE
 
@@ -543,6 +544,7 @@ GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
         (r"image_latency\.json", "Image policy: latency against its floor", render_image_latency),
         (r"image_train\.json", "Image policy: training from the memory-mapped buffer", render_image_train),
         (r"train_throughput_.*\.json", "Training step against the bare update", render_train_throughput),
+        (r"export_latency\.json", "Deployable policy: exported program and ONNX", render_export_latency),
     ],
     "Fine-tuning": [(r"flow_q_.*\.json", "Flow-Q fine-tuning against continued BC", render_flow_q)],
     "Simulators, experts and data": [

@@ -7,12 +7,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, dispatch
 from tensordict.utils import NestedKey
 
+from l1flow_rl import pretrained_folder
 from l1flow_rl.flow.samplers import ChunkSampler, TwoStepSampler, make_sampler
-from l1flow_rl.networks.encoders import ObservationEncoder, StateEncoder
+from l1flow_rl.networks.encoders import AUTO, ObservationEncoder, StateEncoder, make_encoder
 from l1flow_rl.networks.unet1d import ConditionalUnet1D
 from l1flow_rl.policy import STATE_KEY, ChunkPolicy
 
@@ -146,6 +148,44 @@ class L1FlowActor(TensorDictModule):
         return cls(policy, in_keys=in_keys, out_keys=out_keys)
 
     @classmethod
+    def from_config(
+        cls,
+        policy_cfg: DictConfig | Mapping,
+        obs_shapes: Mapping[str, Sequence[int]],
+        action_dim: int,
+        encoder_cfg: DictConfig | Mapping | None = None,
+        *,
+        in_keys: Sequence[NestedKey] = ("observation",),
+        out_keys: Sequence[NestedKey] = ("action_chunk",),
+    ) -> L1FlowActor:
+        """Actor for the policy config, the encoder config (``None``: ``auto``) and the dataset's
+        observation entries (entry -> per-step shape: [D] flat, [3, H, W] an image).
+
+        The encoder comes from the encoder registry (``l1flow_rl.networks.encoders``): ``auto`` takes
+        ``resnet18_gn`` when an entry is an image and ``state`` otherwise; a state-only encoder on
+        image entries is refused, naming them.
+        """
+        p = _plain(policy_cfg)
+        e = _plain(encoder_cfg) if encoder_cfg is not None else {}
+        name = e.pop("name", AUTO)
+        encoder = make_encoder(name, {k: tuple(s) for k, s in obs_shapes.items()}, e)
+        return cls.build(
+            encoder,
+            action_dim=action_dim,
+            obs_horizon=p["obs_horizon"],
+            pred_horizon=p["pred_horizon"],
+            action_steps=p["action_steps"],
+            down_dims=tuple(p["down_dims"]),
+            timestep_embed_dim=p["timestep_embed_dim"],
+            kernel_size=p["kernel_size"],
+            n_groups=p["n_groups"],
+            timestep_scale=p.get("timestep_scale", 1.0),  # checkpoints from before the field: raw t
+            sampler=make_sampler(p["sampler"], **p.get("sampler_kwargs", {})),
+            in_keys=in_keys,
+            out_keys=out_keys,
+        )
+
+    @classmethod
     def for_state(
         cls,
         obs_dim: int | Mapping[str, int],
@@ -177,13 +217,17 @@ class L1FlowActor(TensorDictModule):
     def save_pretrained(self, path: str | os.PathLike, **kwargs: Any) -> Path:
         """Write this actor as a pretrained folder (config.json, model.safetensors,
         normalizer.safetensors); keyword arguments as :func:`l1flow_rl.pretrained.save_pretrained`."""
-        from l1flow_rl.pretrained import save_pretrained
-
-        return save_pretrained(self, path, **kwargs)
+        return pretrained_folder.write_folder(self, path, **kwargs)
 
     @classmethod
     def from_pretrained(cls, path: str | os.PathLike, map_location: str | Any = "cpu") -> L1FlowActor:
         """The actor a pretrained folder holds, rebuilt from its config.json alone (no hydra config)."""
-        from l1flow_rl.pretrained import load_pretrained
+        folder = Path(path)
+        config = pretrained_folder.read_pretrained_config(folder)
+        actor = pretrained_folder.build_described(cls, config, folder)
+        pretrained_folder.load_weights(actor, pretrained_folder.read_state(folder), folder)
+        return actor.to(map_location).eval()
 
-        return load_pretrained(path, map_location)
+
+def _plain(cfg: DictConfig | Mapping) -> dict:
+    return OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else dict(cfg)  # type: ignore[return-value]

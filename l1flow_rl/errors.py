@@ -19,7 +19,14 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
-__all__ = ["CheckpointReadError", "RunDirectoryError", "RunDivergedError", "RunPreempted", "UserInputError"]
+__all__ = [
+    "CheckpointMismatchError",
+    "CheckpointReadError",
+    "RunDirectoryError",
+    "RunDivergedError",
+    "RunPreempted",
+    "UserInputError",
+]
 
 
 class UserInputError(Exception):
@@ -28,6 +35,10 @@ class UserInputError(Exception):
 
 class CheckpointReadError(UserInputError, ValueError):
     """A checkpoint file that is missing, truncated, or not one that l1flow-rl wrote."""
+
+
+class CheckpointMismatchError(UserInputError, ValueError):
+    """The checkpoint was made for another task or network than the one asked for."""
 
 
 class RunDirectoryError(UserInputError):

@@ -7,14 +7,14 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
+from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.pretrained import save_pretrained
+from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
+
 __all__ = ["run_export"]
 
 
 def run_export(cfg: DictConfig) -> int:
-    from l1flow_rl.actor import L1FlowActor
-    from l1flow_rl.pretrained import save_pretrained
-    from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
-
     if not cfg.checkpoint or not cfg.out:
         print(
             "l1flow-rl export: pass checkpoint=PATH (a .pt file or a run's checkpoints/ folder) and out=DIR"

@@ -34,6 +34,7 @@ ALLOWED_FUNCTION_IMPORTS: dict[tuple[str, str], str] = {
     ("l1flow_rl.data.loading", "l1flow_rl.data.formats.base"): "h5py",
     ("l1flow_rl.data.loading", "l1flow_rl.data.formats.dp_zarr"): "h5py",
     ("l1flow_rl.data.loading", "l1flow_rl.data.formats.lerobot"): "h5py",
+    ("l1flow_rl.data.loading", "l1flow_rl.data.formats.lerobot_v3"): "h5py",
     ("l1flow_rl.data.loading", "l1flow_rl.data.formats.maniskill"): "h5py",
     ("l1flow_rl.data.loading", "l1flow_rl.data.formats.robomimic"): "h5py",
     ("l1flow_rl.envs.robosuite.dataset", "l1flow_rl.data.formats.robomimic"): "h5py",

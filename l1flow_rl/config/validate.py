@@ -65,11 +65,12 @@ class ConfigValidationError(ValueError):
 
 #: What each sub-command builds from the config, hence what must be checked for it:
 #: ``"policy"``: the method (sampler, loss and their options); ``"network"``: an encoder that must
-#: fit the task's observations. ``eval`` takes both from its checkpoint (and checks a swapped
-#: sampler itself); a command not listed gets both.
+#: fit the task's observations. ``eval`` and ``export`` take both from the checkpoint (``eval`` checks a
+#: swapped sampler itself); a command not listed gets both.
 COMMAND_SCOPES: dict[str, frozenset[str]] = {
     "train": frozenset({"policy", "network"}),
     "eval": frozenset(),
+    "export": frozenset(),
     "demos": frozenset(),
     "toy": frozenset(),
 }

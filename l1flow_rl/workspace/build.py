@@ -9,8 +9,6 @@ from omegaconf import DictConfig, OmegaConf
 from torchrl.objectives import LossModule
 
 from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.flow.samplers import make_sampler
-from l1flow_rl.networks.encoders import AUTO, make_encoder
 from l1flow_rl.objectives.registry import get_loss
 
 __all__ = ["build_actor", "build_loss"]
@@ -27,29 +25,8 @@ def build_actor(
     encoder_cfg: DictConfig | Mapping | None = None,
 ) -> L1FlowActor:
     """Actor for the policy config, the encoder config (``None``: ``auto``) and the dataset's
-    observation entries (entry -> per-step shape: [D] flat, [3, H, W] an image).
-
-    The encoder comes from the encoder registry (``l1flow_rl.networks.encoders``): ``auto`` takes
-    ``resnet18_gn`` when an entry is an image and ``state`` otherwise; a state-only encoder on
-    image entries is refused, naming them.
-    """
-    p = _plain(policy_cfg)
-    e = _plain(encoder_cfg) if encoder_cfg is not None else {}
-    name = e.pop("name", AUTO)
-    encoder = make_encoder(name, {k: tuple(s) for k, s in obs_shapes.items()}, e)
-    return L1FlowActor.build(
-        encoder,
-        action_dim=action_dim,
-        obs_horizon=p["obs_horizon"],
-        pred_horizon=p["pred_horizon"],
-        action_steps=p["action_steps"],
-        down_dims=tuple(p["down_dims"]),
-        timestep_embed_dim=p["timestep_embed_dim"],
-        kernel_size=p["kernel_size"],
-        n_groups=p["n_groups"],
-        timestep_scale=p.get("timestep_scale", 1.0),  # checkpoints from before the field: raw t
-        sampler=make_sampler(p["sampler"], **p.get("sampler_kwargs", {})),
-    )
+    observation entries: :meth:`L1FlowActor.from_config <l1flow_rl.L1FlowActor.from_config>`."""
+    return L1FlowActor.from_config(policy_cfg, obs_shapes, action_dim, encoder_cfg)
 
 
 def build_loss(actor: L1FlowActor, policy_cfg: DictConfig | Mapping) -> LossModule:

@@ -21,9 +21,10 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.errors import CheckpointReadError, UserInputError
+from l1flow_rl.errors import CheckpointMismatchError, CheckpointReadError
 from l1flow_rl.networks.best_of_n import BestOfNActor
 from l1flow_rl.networks.critic import build_critics, stack_critics
+from l1flow_rl.state_dict import load_state_into
 from l1flow_rl.workspace.build import build_actor
 
 __all__ = [
@@ -81,10 +82,6 @@ RESUME_MAY_CHANGE: tuple[str, ...] = (
     "resume",
     "toy.*",  # the toy command's group: no training job reads it
 )
-
-
-class CheckpointMismatchError(UserInputError, ValueError):
-    """The checkpoint was made for another task or network than the one asked for."""
 
 
 class CheckpointNotFoundError(CheckpointReadError, FileNotFoundError):
@@ -295,30 +292,6 @@ def load_actor(
     weights = state["ema"] if use_ema and state.get("ema") is not None else state["model"]
     load_state_into(actor, weights, str(path))
     return actor.to(map_location).eval(), cfg
-
-
-def load_state_into(actor: torch.nn.Module, weights: Mapping[str, torch.Tensor], path: str = "") -> None:
-    """``load_state_dict`` with a message that lists missing, unexpected and mis-shaped entries."""
-    own = actor.state_dict()
-    missing = sorted(set(own) - set(weights))
-    unexpected = sorted(set(weights) - set(own))
-    shapes = [
-        f"{k}: checkpoint {tuple(weights[k].shape)} vs model {tuple(own[k].shape)}"
-        for k in sorted(set(own) & set(weights))
-        if weights[k].shape != own[k].shape
-    ]
-    if missing or unexpected or shapes:
-        parts = []
-        if shapes:
-            parts.append("shape mismatches:\n    " + "\n    ".join(shapes[:10]))
-        if missing:
-            parts.append(f"missing from checkpoint: {missing[:10]}")
-        if unexpected:
-            parts.append(f"not in model: {unexpected[:10]}")
-        raise CheckpointMismatchError(
-            f"checkpoint {path!r} does not fit the network:\n  " + "\n  ".join(parts)
-        )
-    actor.load_state_dict(weights)
 
 
 def get_rng_state() -> dict[str, Any]:

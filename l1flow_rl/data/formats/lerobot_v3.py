@@ -51,6 +51,7 @@ def is_lerobot_v3(path: Path) -> bool:
 
 def _pq():
     try:
+        # the lerobot extra: parquet tables
         import pyarrow.parquet as pq
     except ImportError as err:
         raise ImportError(
@@ -84,6 +85,7 @@ def _read_info(path: Path) -> dict[str, Any]:
 
 def _column(table, key: str, shape: Sequence[int], source: Path) -> np.ndarray:
     """A numeric column as [rows, *shape]: scalars for shape (1,), (nested) lists otherwise."""
+    # the lerobot extra: parquet tables
     import pyarrow as pa
 
     column = table.column(key).combine_chunks()
@@ -352,6 +354,7 @@ class LeRobotV3Directory(EpisodeFile):
             )
             frames = decode_window(video, times, tolerance_s=self.tolerance_s, key=key)
         else:
+            # the app extra: PNG-encoded image columns
             import imageio.v3 as iio
 
             try:

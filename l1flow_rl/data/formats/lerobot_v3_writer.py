@@ -60,6 +60,7 @@ _NOT_STORED = {"observation", "truncated"}
 
 def _pa():
     try:
+        # the lerobot extra: parquet tables
         import pyarrow as pa
         import pyarrow.parquet as pq
     except ImportError as err:
@@ -144,6 +145,7 @@ def _dtype_name(values: np.ndarray) -> str:
 
 def _png_column(pa, frames: np.ndarray):
     """LeRobot's ``image`` feature: a struct of PNG bytes and a path (None: the bytes are the image)."""
+    # the app extra: PNG-encoded image columns
     import imageio.v3 as iio
 
     encoded = [iio.imwrite("<bytes>", frame, extension=".png") for frame in frames]

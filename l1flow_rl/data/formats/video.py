@@ -18,6 +18,7 @@ LEROBOT_TOLERANCE_S = 1e-4
 
 def _av():
     try:
+        # the lerobot extra: mp4 camera streams
         import av
     except ImportError as err:
         raise ImportError(

@@ -24,6 +24,7 @@ import os
 from collections.abc import Mapping
 
 import torch
+from safetensors.torch import load_file
 from torch import Tensor, nn
 
 __all__ = ["BasicBlock", "ResNet18GN", "group_norm", "load_torchvision_resnet18"]
@@ -131,9 +132,6 @@ def load_torchvision_resnet18(
     where = str(source) if isinstance(source, (str, os.PathLike)) else "the given state_dict"
     if isinstance(source, (str, os.PathLike)):
         if str(source).endswith(".safetensors"):
-            # optional dependency: reading .safetensors weights
-            from safetensors.torch import load_file
-
             weights: Mapping[str, Tensor] = load_file(str(source))
         else:
             weights = torch.load(source, map_location="cpu", weights_only=True)
