@@ -24,7 +24,7 @@ from l1flow_rl.networks.critic import fresh_encoder
 from l1flow_rl.normalizer import NormalizerDict
 from l1flow_rl.policy import ChunkPolicy
 
-__all__ = ["NoiseActor", "NoisePolicy"]
+__all__ = ["NoiseActor", "NoisePolicy", "PriorNoise"]
 
 
 class NoisePolicy(nn.Module):
@@ -72,9 +72,25 @@ class NoisePolicy(nn.Module):
         return w.reshape(obs.shape[0], *self.noise_shape), log_prob
 
 
+class PriorNoise(nn.Module):
+    """The flow's own input distribution, w ~ N(0, I) clipped to the bound: the BC policy, acting with
+    :class:`NoisePolicy`'s interface (DSRL's warm-up steps; log-probabilities are not defined)."""
+
+    def __init__(self, noise_shape: Sequence[int], bound: float) -> None:
+        super().__init__()
+        self.noise_shape, self.bound = tuple(noise_shape), float(bound)
+
+    def sample(self, obs: TensorDictBase, *, deterministic: bool = False) -> tuple[Tensor, Tensor]:
+        shape = (obs.shape[0], *self.noise_shape)
+        w = torch.zeros(shape) if deterministic else torch.randn(shape).clamp(-self.bound, self.bound)
+        return w, torch.full(shape[:1], float("nan"))
+
+
 class NoiseActor(TensorDictModuleBase):
-    """Writes the steering noise ``"noise"`` [*B, H, A] and the flow's window ``"action_chunk"``
-    [*B, K, A] decoded from it (one 2-NFE call). The flow's parameters are frozen here.
+    """Writes the flow's window ``"action_chunk"`` [*B, K, A] decoded (one 2-NFE call) from the steering
+    noise w [*B, H, A], and ``"noise_chunk"`` [*B, K, H, A]: w once per executed step, so that
+    TorchRL's ``MultiStepActorWrapper`` hands every step of the chunk its ``"noise"`` (and the replay
+    buffer stores, at each chunk's first step, the w that chunk came from). The flow is frozen here.
 
     Examples:
         >>> import torch
@@ -83,8 +99,8 @@ class NoiseActor(TensorDictModuleBase):
         >>> flow = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
         >>> steer = NoiseActor.from_flow(flow, bound=1.5, hidden_dims=(64,))
         >>> out = steer(TensorDict({"observation": torch.randn(3, 2, 5)}, [3]))
-        >>> out["action_chunk"].shape, bool(out["noise"].abs().max() <= 1.5)
-        (torch.Size([3, 8, 2]), True)
+        >>> out["action_chunk"].shape, out["noise_chunk"].shape, bool(out["noise_chunk"].abs().max() <= 1.5)
+        (torch.Size([3, 8, 2]), torch.Size([3, 8, 16, 2]), True)
     """
 
     def __init__(
@@ -93,7 +109,7 @@ class NoiseActor(TensorDictModuleBase):
         noise_policy: NoisePolicy,
         *,
         in_keys: Sequence[NestedKey] = ("observation",),
-        out_keys: Sequence[NestedKey] = ("action_chunk", "noise"),
+        out_keys: Sequence[NestedKey] = ("action_chunk", "noise_chunk"),
     ) -> None:
         super().__init__()
         self.flow = flow.requires_grad_(False)
@@ -108,6 +124,17 @@ class NoiseActor(TensorDictModuleBase):
         policy = NoisePolicy(flow.policy, bound=bound, hidden_dims=hidden_dims)
         return cls(flow, policy.to(next(flow.policy.parameters()).device))
 
+    def prior(self) -> NoiseActor:
+        """The same flow acting on N(0, I) noise clipped to the bound (the BC policy), writing the same
+        keys: what DSRL collects with before its first update."""
+        bound = self.noise_policy.bound
+        return NoiseActor(
+            self.flow,
+            PriorNoise(self.noise_policy.noise_shape, bound),
+            in_keys=self.in_keys,
+            out_keys=self.out_keys,
+        )
+
     @property
     def policy(self) -> ChunkPolicy:
         return self.flow.policy
@@ -121,7 +148,9 @@ class NoiseActor(TensorDictModuleBase):
         """The flow's full chunk [N, H, A] (environment units) from input noise [N, H, A]."""
         policy = self.policy
         cond = policy.encode(obs)
-        x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), noise.to(cond.dtype))
+        x1 = policy.sampler(
+            lambda x, t: policy.denoise(x, t, cond), noise.to(device=cond.device, dtype=cond.dtype)
+        )
         return policy.action_normalizer.unnormalize(x1)
 
     @torch.no_grad()
@@ -136,5 +165,6 @@ class NoiseActor(TensorDictModuleBase):
         noise, _ = self.noise_policy.sample(obs, deterministic=deterministic)
         window = policy.executable(self.decode(obs, noise))
         tensordict.set(self.out_keys[0], window.reshape(*batch, *window.shape[1:]))
-        tensordict.set(self.out_keys[1], noise.reshape(*batch, *noise.shape[1:]))
+        per_step = noise.unsqueeze(1).expand(-1, window.shape[1], *noise.shape[1:])
+        tensordict.set(self.out_keys[1], per_step.reshape(*batch, *per_step.shape[1:]))
         return tensordict

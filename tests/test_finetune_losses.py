@@ -162,8 +162,37 @@ def test_steering_noise_stays_in_bounds_and_the_flow_stays_unchanged():
     for k, v in flow.state_dict().items():
         assert torch.equal(v, before[k]), k
     acted = steer(TensorDict({"observation": torch.randn(256, 2, 2)}, [256]))
-    assert acted["noise"].abs().max() <= 1.5
-    assert acted["noise"].mean() > 0.3  # the actor did move (towards the rewarded +bound)
+    noise = acted["noise_chunk"][:, 0]
+    assert torch.equal(acted["noise_chunk"], noise.unsqueeze(1).expand(-1, 4, 8, 3))  # one w per chunk
+    assert noise.abs().max() <= 1.5
+    assert noise.mean() > 0.3  # the actor did move (towards the rewarded +bound)
     # the executed chunk is the flow's decoding of the chosen noise
     obs = flow.policy.as_obs_dict(acted["observation"])
-    assert torch.allclose(acted["action_chunk"], flow.policy.executable(steer.decode(obs, acted["noise"])))
+    assert torch.allclose(acted["action_chunk"], flow.policy.executable(steer.decode(obs, noise)))
+
+
+def test_steering_under_the_multi_step_wrapper_gives_each_step_its_chunk_noise_and_counter():
+    from torchrl.modules import MultiStepActorWrapper
+
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    steer = NoiseActor.from_flow(flow, hidden_dims=(16,))
+    acting = MultiStepActorWrapper(steer, n_steps=4)
+    td = TensorDict({"observation": torch.randn(2, 2, 2), "is_init": torch.ones(2, 1, dtype=torch.bool)}, [2])
+    seen = []
+    for _ in range(5):
+        td = acting(td)
+        seen.append((int(td["counter"][0]), td["noise"].clone(), td["action"].clone()))
+        td["is_init"] = torch.zeros(2, 1, dtype=torch.bool)
+    assert [c for c, _, _ in seen] == [1, 2, 3, 4, 1]  # a new chunk every 4 steps
+    assert all(torch.equal(seen[0][1], n) for _, n, _ in seen[1:4]) and not torch.equal(
+        seen[0][1], seen[4][1]
+    )
+    # DSRL values only windows that start a chunk
+    loss = DSRLLoss(
+        steer, ChunkCritic.from_policy(flow, input_shape=(8, 3), hidden_dims=(8,), normalize_input=False)
+    )
+    batch = TensorDict(
+        {"counter": torch.tensor([[1], [2], [1]]), "chunk_valid": torch.tensor([[True], [True], [False]])},
+        [3],
+    )
+    assert loss.valid(batch, 3).tolist() == [True, False, False]

@@ -91,6 +91,7 @@ class OnlineConfig:
     seed_with_offline: bool = False  # FQL's alternative: one buffer the demonstrations seed
     capacity: int = 0  # online steps kept; 0: all of them
     eval_every: int = 0  # env steps; 0: validate only at the start and the end
+    checkpoint_every: int = 10_000  # env steps; an online checkpoint also dumps the replay buffer
     env_seed: int = 100_000  # the first collection episode's seed (validation uses eval.seed onward)
 
 

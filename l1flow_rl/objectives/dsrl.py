@@ -70,9 +70,13 @@ class DSRLLoss(ChunkCriticLoss):
         Attributes:
             noise (NestedKey): the flow's input noise w [*B, H, A] the executed chunk came from.
                 Defaults to ``"noise"``.
+            step_counter (NestedKey): optional [*B, 1], ``MultiStepActorWrapper``'s count of the
+                chunk's steps (1 at its first). Where present, only windows that start a chunk are
+                valid: w describes the actions from there on. Defaults to ``"counter"``.
         """
 
         noise: NestedKey = "noise"
+        step_counter: NestedKey = "counter"
 
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
@@ -120,6 +124,13 @@ class DSRLLoss(ChunkCriticLoss):
             f"the flow's input noise [*B, {', '.join(map(str, self.critic.input_shape))}]",
         )
         return noise.reshape(-1, *self.critic.input_shape)
+
+    def valid(self, td: TensorDictBase, n: int) -> Tensor:
+        valid = super().valid(td, n)
+        counter = td.get(self.tensor_keys.step_counter, default=None)
+        if counter is None:
+            return valid
+        return valid & (counter.reshape(n) == 1).to(valid.device)
 
     def _sample(self, obs: TensorDictBase) -> tuple[Tensor, Tensor]:
         with self.actor_network_params.to_module(self.actor_network):

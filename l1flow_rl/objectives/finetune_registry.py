@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from omegaconf import DictConfig
+from torch import nn
 
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.config.finetune import DSRLSettings, FQLSettings, QCSettings
@@ -38,14 +39,18 @@ __all__ = ["FINETUNE_ALGORITHMS", "FinetuneAlgorithm", "register_finetune_algori
 
 @dataclass(frozen=True)
 class FinetuneAlgorithm:
-    """``build(flow, finetune_cfg)`` -> the loss (its ``actor`` acts); ``settings``: the dataclass of
-    the algorithm's own block ``finetune.<name>``; ``uses_offline_data``: False where the batches need
-    entries demonstrations lack (DSRL's noise)."""
+    """``build(flow, finetune_cfg)`` -> the loss (its ``actor`` acts); ``start_actor(loss)``: the BC
+    policy in the form that writes what the online buffer stores (the warm-up steps' actor);
+    ``settings``: the dataclass of the algorithm's own block ``finetune.<name>``; ``online_keys``:
+    per-step entries the online buffer keeps beside the core ones; ``uses_offline_data``: False where
+    the batches need entries demonstrations lack (DSRL's noise)."""
 
     name: str
     loss_cls: type[ChunkCriticLoss]
     settings: type
     build: Callable[[L1FlowActor, DictConfig], ChunkCriticLoss]
+    start_actor: Callable[[ChunkCriticLoss], nn.Module]
+    online_keys: tuple[str, ...] = ()
     uses_offline_data: bool = True
 
     def check(self, cfg: DictConfig) -> list[str]:
@@ -130,8 +135,21 @@ def _build_dsrl(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
     )
 
 
-register_finetune_algorithm(FinetuneAlgorithm("qc", QCLoss, QCSettings, _build_qc))
-register_finetune_algorithm(FinetuneAlgorithm("fql", FQLLoss, FQLSettings, _build_fql))
+def _flow(loss) -> L1FlowActor:
+    return loss.flow
+
+
+register_finetune_algorithm(FinetuneAlgorithm("qc", QCLoss, QCSettings, _build_qc, _flow))
+register_finetune_algorithm(FinetuneAlgorithm("fql", FQLLoss, FQLSettings, _build_fql, _flow))
 register_finetune_algorithm(
-    FinetuneAlgorithm("dsrl", DSRLLoss, DSRLSettings, _build_dsrl, uses_offline_data=False)
+    FinetuneAlgorithm(
+        "dsrl",
+        DSRLLoss,
+        DSRLSettings,
+        _build_dsrl,
+        lambda loss: loss.actor.prior(),
+        # the chunk's noise at each step, and the wrapper's step count (1 where a chunk starts)
+        online_keys=("noise", "counter"),
+        uses_offline_data=False,
+    )
 )

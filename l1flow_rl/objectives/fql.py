@@ -90,6 +90,7 @@ class FQLLoss(ChunkCriticLoss):
                 )
         self.convert_to_functional(actor_network, "actor_network")
         self.bc_loss = L1FlowLoss(flow_network)
+        self.__dict__["flow"] = flow_network  # the BC flow (the acting start; its parameters are bc_loss's)
         self.alpha, self.normalize_q_loss = float(alpha), bool(normalize_q_loss)
 
     @property

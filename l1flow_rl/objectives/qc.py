@@ -69,6 +69,7 @@ class QCLoss(ChunkCriticLoss):
         rl_horizon: int | None = None,
     ) -> None:
         super().__init__(critic, actor_network, gamma=gamma, q_agg=q_agg, rl_horizon=rl_horizon)
+        self.__dict__["flow"] = actor_network  # the BC flow (the acting start; shared, not copied)
         self.freeze_flow = bool(freeze_flow)
         if self.freeze_flow:
             actor_network.requires_grad_(False)

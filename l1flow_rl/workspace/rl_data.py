@@ -65,9 +65,18 @@ class RLBuffers:
         episodes: the demonstrations (with rewards and next observations).
         rl_horizon: h, the critic's executed chunk length.
         seed: seeds the buffers' generators.
+        online_keys: per-step entries the online buffer keeps beside the core ones (the
+            algorithm's, e.g. DSRL's noise).
     """
 
-    def __init__(self, cfg: DictConfig, episodes: TensorDictBase, rl_horizon: int, seed: int) -> None:
+    def __init__(
+        self,
+        cfg: DictConfig,
+        episodes: TensorDictBase,
+        rl_horizon: int,
+        seed: int,
+        online_keys: tuple[str, ...] = (),
+    ) -> None:
         from l1flow_rl.data import make_chunk_buffer
         from l1flow_rl.data.online import CORE_KEYS
         from l1flow_rl.workspace.dataset import chunk_padding
@@ -96,7 +105,13 @@ class RLBuffers:
             reward_key=REWARD_KEYS[reward],
             keys=CORE_KEYS,  # demonstrations and online episodes share one set of entries
         )
+        online = (*CORE_KEYS, *online_keys)
         if self.mixing == "seed":
+            if online_keys:
+                raise ValueError(
+                    f"online.seed_with_offline: the demonstrations lack the entries {list(online_keys)} "
+                    "this algorithm stores per step; keep them in separate buffers"
+                )
             self.offline = make_chunk_buffer(
                 episodes, seed=seed, capacity=n_demo + (online_capacity if ocfg.steps > 0 else 0), **common
             )
@@ -107,7 +122,9 @@ class RLBuffers:
             # "conflicting batch sizes" warning on every draw
             common["batch_size"] = None
             self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
-            self.online = make_chunk_buffer(None, seed=seed + 1, capacity=max(online_capacity, 1), **common)
+            self.online = make_chunk_buffer(
+                None, seed=seed + 1, capacity=max(online_capacity, 1), **{**common, "keys": online}
+            )
             self.mixed = ChunkOfflineToOnlineBuffer(
                 self.offline,
                 self.online,
@@ -116,7 +133,9 @@ class RLBuffers:
             )
         else:  # online data only
             self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
-            self.online = make_chunk_buffer(None, seed=seed + 1, capacity=max(online_capacity, 1), **common)
+            self.online = make_chunk_buffer(
+                None, seed=seed + 1, capacity=max(online_capacity, 1), **{**common, "keys": online}
+            )
             self.mixed = self.online
         self.batch_size = int(cfg.finetune.batch_size)
         self.online_steps_stored = 0

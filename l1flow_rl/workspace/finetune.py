@@ -1,0 +1,271 @@
+"""``l1flow-rl finetune finetune=qc|fql|dsrl checkpoint=BC.pt``: a BC policy improved with rewards.
+
+    l1flow-rl finetune finetune=qc checkpoint=runs/bc/checkpoints/best.pt task=maniskill_pickcube \\
+        online.steps=100000 eval.episodes=100 online.eval_every=10000
+
+1. The BC start is validated first: it competes for ``best.pt``, so a run never reports a policy
+   below its start.
+2. Offline (``offline.steps``): updates on the demonstrations' chunk windows (QC, FQL).
+3. Online: rounds of ``online.frames_per_round`` env steps from ``online.num_envs`` worker envs (a
+   TorchRL collector); the first ``online.warmup_steps`` are the BC start's, then each round is
+   followed by ``online.updates_per_step`` updates per env step past the warm-up, on batches that
+   take ``online.offline_fraction`` of their windows from the demonstrations (TorchRL's
+   ``OfflineToOnlineReplayBuffer``). Each round logs env steps/s, updates/s, the critic
+   diagnostics and the collected episodes' success; validation every ``online.eval_every`` env steps.
+4. The chosen policy (best validation, the start included) on the test seeds: ``eval.json``.
+
+The run directory, resume (``resume=true``, exact: the online buffer and every RNG are in the
+checkpoint), checkpoints, validation and the report are the harness's
+(:mod:`l1flow_rl.workspace.harness`); this module is the loop. Checkpoints hold the acting module
+with a config that rebuilds it (``policy.finetune``), so ``l1flow-rl eval`` takes them unchanged.
+"""
+
+from __future__ import annotations
+
+import copy
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+from omegaconf import DictConfig, OmegaConf, open_dict
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+__all__ = ["run_finetune"]
+
+#: fields a resumed run may change beside the harness's (cadences only)
+MAY_CHANGE = ("finetune.log_every", "offline.eval_every", "online.eval_every", "online.checkpoint_every")
+
+
+class ActingSwitch(TensorDictModuleBase):
+    """The collector's policy: the BC start until ``trained`` is set, then the algorithm's actor
+    (both write the same keys; the collector keeps one policy object for the whole run)."""
+
+    def __init__(self, start: TensorDictModuleBase, actor: TensorDictModuleBase) -> None:
+        super().__init__()
+        if list(start.out_keys) != list(actor.out_keys):
+            raise ValueError(f"the start writes {start.out_keys}, the actor {actor.out_keys}")
+        self.start, self.actor, self.trained = start, actor, False
+        self.in_keys, self.out_keys = list(actor.in_keys), list(actor.out_keys)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return (self.actor if self.trained else self.start)(tensordict)
+
+
+def update(loss, optimizer: torch.optim.Optimizer, target_update, batch: TensorDictBase) -> dict[str, Any]:
+    """One update: every ``loss_*`` term summed, one Adam step, one Polyak step of the target critics.
+    Returns the loss's outputs (tensors: read to the host only when logged)."""
+    out = loss(batch)
+    total = sum(v for k, v in out.items() if k.startswith("loss_"))
+    optimizer.zero_grad(set_to_none=True)
+    total.backward()
+    optimizer.step()
+    target_update.step()
+    return {k: v.detach() for k, v in out.items()}
+
+
+def _check_task(bc_cfg: DictConfig, cfg: DictConfig, path: str) -> None:
+    from l1flow_rl.workspace.checkpoint import CheckpointMismatchError
+
+    diffs = [
+        f"task.{f}: checkpoint has {bc_cfg.task.get(f)!r}, config asks for {cfg.task.get(f)!r}"
+        for f in ("env_id", "obs_mode", "control_mode")
+        if bc_cfg.task.get(f) != cfg.task.get(f)
+    ]
+    if diffs:
+        raise CheckpointMismatchError(
+            f"checkpoint={path!r} was trained on another task than task={cfg.task.name!r}:\n  "
+            + "\n  ".join(diffs)
+        )
+    if bc_cfg.policy.get("finetune"):
+        raise CheckpointMismatchError(
+            f"checkpoint={path!r} is a fine-tuned policy ({bc_cfg.policy.finetune.algorithm}); pass the BC "
+            "checkpoint it started from"
+        )
+
+
+def _dataset(cfg: DictConfig, bc_state: dict) -> Path:
+    """``data.path``, else the BC run's own demonstrations, else the task's expert demonstrations."""
+    from l1flow_rl.workspace.dataset import resolve_dataset
+
+    if cfg.data.path:
+        return Path(cfg.data.path)
+    saved = bc_state.get("dataset")
+    if saved and Path(saved).exists():
+        return Path(saved)
+    return resolve_dataset(cfg)
+
+
+def run_finetune(cfg: DictConfig) -> int:
+    from torchrl.objectives import SoftUpdate
+
+    from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
+    from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
+    from l1flow_rl.workspace.collect import OnlineCollector, round_stats
+    from l1flow_rl.workspace.dataset import load_task_episodes
+    from l1flow_rl.workspace.distributed import resolve_device
+    from l1flow_rl.workspace.harness import Run
+    from l1flow_rl.workspace.rl_data import RLBuffers
+
+    if not cfg.checkpoint:
+        print("l1flow-rl finetune: pass checkpoint=PATH (the L1 Flow BC checkpoint to fine-tune)")
+        return 2
+    device = resolve_device(cfg.device)
+    bc_state = load_checkpoint(cfg.checkpoint)
+    bc_actor, bc_cfg = load_actor(cfg.checkpoint, use_ema=True, map_location=device)
+    _check_task(bc_cfg, cfg, str(cfg.checkpoint))
+    with open_dict(cfg):  # the network is the checkpoint's
+        cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)
+        if bc_cfg.get("encoder") is not None and "encoder" in cfg:
+            cfg.encoder = OmegaConf.merge(cfg.encoder, bc_cfg.encoder)
+    algorithm = FINETUNE_ALGORITHMS[cfg.finetune.algorithm]
+    fcfg, off, on = cfg.finetune, cfg.offline, cfg.online
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    # what rebuilds each acting module (load_actor): the BC policy's config, plus the algorithm's block
+    start_config = {**plain, "policy": plain["policy"]}
+    tuned_config = {**plain, "policy": {**plain["policy"], "finetune": plain["finetune"]}}
+
+    with Run(
+        cfg,
+        job="finetune",
+        device=device,
+        may_change=MAY_CHANGE,
+        phases=("offline", "online"),
+        log_every=0,  # logged per offline log_every updates and per online round, below
+        checkpoint_every=0,  # checkpointed below: an online checkpoint also dumps the buffer
+        eval_every=0,
+        history_keys=("loss_qvalue", "q_data_mean", "target_mean", "td_error_abs", "env_steps"),
+    ) as run:
+        dataset = _dataset(cfg, bc_state)
+        episodes = load_task_episodes(cfg, dataset)
+        loss = algorithm.build(copy.deepcopy(bc_actor), fcfg).to(device)
+        start = algorithm.start_actor(loss)
+        acting = ActingSwitch(start, loss.actor)
+        optimizer = torch.optim.Adam([p for p in loss.parameters() if p.requires_grad], lr=float(fcfg.lr))
+        target_update = SoftUpdate(loss, tau=float(fcfg.tau))
+        buffers = RLBuffers(
+            cfg, episodes, loss.rl_horizon, seed=int(cfg.seed), online_keys=algorithm.online_keys
+        )
+        progress = {"offline_updates": 0, "online_updates": 0, "env_steps": 0, "rounds": 0, "started": False}
+        saved = {"buffer": None, "describe_start": False}
+        run.records.setdefault("rounds", [])
+
+        def state() -> dict[str, Any]:
+            model = start if saved["describe_start"] else loss.actor
+            return {
+                "model": model.state_dict(),
+                "ema": None,
+                "config": start_config if saved["describe_start"] else tuned_config,
+                "source_checkpoint": str(cfg.checkpoint),
+                "obs_shapes": {k: list(v) for k, v in bc_state["obs_shapes"].items()},
+                "action_dim": int(bc_state["action_dim"]),
+                "dataset": str(dataset),
+                "loss": loss.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "buffers": buffers.state_dict(),
+                "online_buffer": saved["buffer"],
+                "progress": dict(progress),
+            }
+
+        def load(resumed: dict[str, Any]) -> None:
+            loss.load_state_dict(resumed["loss"])
+            optimizer.load_state_dict(resumed["optimizer"])
+            if resumed.get("online_buffer"):
+                buffers.load_online(run.ckpt_dir / resumed["online_buffer"])
+            buffers.load_state_dict(resumed["buffers"])
+            progress.update(resumed["progress"])
+            saved["buffer"] = resumed.get("online_buffer")
+
+        def step() -> int:  # one counter for both phases: offline updates, then env steps
+            return progress["offline_updates"] + progress["env_steps"]
+
+        def save(dump_online: bool) -> None:
+            if dump_online:
+                name = f"online_buffer_round{progress['rounds']}"
+                buffers.dump_online(run.ckpt_dir / name)
+                saved["buffer"] = name
+            run.save()
+            for old in run.ckpt_dir.glob("online_buffer_round*"):  # latest.pt names another one now
+                if old.name != saved["buffer"]:
+                    shutil.rmtree(old, ignore_errors=True)
+
+        run.begin(state, load, step=step, total=int(off.steps) + int(on.steps))
+        if not progress["started"]:  # the start competes: a run never reports a policy below it
+            saved["describe_start"] = True
+            run.validate(start, 0, phase="start", env_steps=0, updates=0)
+            saved["describe_start"] = False
+            progress["started"] = True
+
+        with run.phase("offline"):
+            while progress["offline_updates"] < off.steps:
+                metrics = update(loss, optimizer, target_update, buffers.sample_offline().to(device))
+                progress["offline_updates"] += 1
+                n = progress["offline_updates"]
+                if n % fcfg.log_every == 0 or n == off.steps:
+                    run.log(step(), {**metrics, "env_steps": 0.0}, prefix="offline")
+                if off.eval_every and n % off.eval_every == 0:
+                    run.validate(loss.actor, step(), phase="offline", env_steps=0, updates=n)
+                if n == off.steps:
+                    save(dump_online=False)
+                run.step_done(step(), metrics, loss.actor)  # a stop signal checkpoints here
+
+        with run.phase("online"):
+            if progress["env_steps"] < on.steps:
+                with OnlineCollector(cfg, acting, device) as collector:
+                    while progress["env_steps"] < on.steps:
+                        acting.trained = progress["env_steps"] >= on.warmup_steps
+                        t0 = time.perf_counter()
+                        data = collector.collect(progress["rounds"])
+                        collect_s = time.perf_counter() - t0
+                        stored = buffers.add_collected(data)
+                        frames = int(data.numel())
+                        before = progress["env_steps"]
+                        progress["env_steps"] += frames
+                        progress["rounds"] += 1
+                        # updates_per_step per env step past the warm-up (QC/RLPD start after it)
+                        due = int(on.updates_per_step * max(0, progress["env_steps"] - on.warmup_steps))
+                        t0, metrics = time.perf_counter(), {}
+                        while progress["online_updates"] < due:
+                            batch = buffers.sample_online().to(device)
+                            metrics = update(loss, optimizer, target_update, batch)
+                            progress["online_updates"] += 1
+                        update_s = time.perf_counter() - t0
+                        updates = due - int(on.updates_per_step * max(0, before - on.warmup_steps))
+                        record = {
+                            **round_stats(data),
+                            "env_steps": progress["env_steps"],
+                            "steps_stored": stored,
+                            "policy": "actor" if acting.trained else "start",
+                            "env_steps_per_s": frames / collect_s,
+                            "updates": updates,
+                            "updates_per_s": updates / update_s if updates else None,
+                        }
+                        run.records["rounds"].append(record)
+                        numbers = {k: float(v) for k, v in record.items() if isinstance(v, (int, float))}
+                        run.log(step(), {**metrics, **numbers}, prefix="online")
+                        crossed = lambda every: every and progress["env_steps"] // every > before // every  # noqa: E731
+                        last = progress["env_steps"] >= on.steps
+                        if crossed(on.eval_every) and not last:
+                            run.validate(
+                                loss.actor,
+                                step(),
+                                phase="online",
+                                env_steps=progress["env_steps"],
+                                updates=progress["offline_updates"] + progress["online_updates"],
+                            )
+                        if crossed(on.checkpoint_every) or last:
+                            save(dump_online=True)
+                        run.step_done(step(), metrics, loss.actor)
+
+        summary = {
+            "task": cfg.task.name,
+            "algorithm": fcfg.algorithm,
+            "source_checkpoint": str(cfg.checkpoint),
+            "offline_updates": progress["offline_updates"],
+            "online_updates": progress["online_updates"],
+            "env_steps": progress["env_steps"],
+        }
+        run.finish(loss.actor, summary)
+    return 0

@@ -1,0 +1,170 @@
+"""``l1flow-rl finetune`` end to end on the real ManiSkill PushCube: a BC checkpoint in, the start
+validated, offline then online updates (TorchRL collector, 2 worker envs), eval.json and checkpoints
+out, and exact resume of an online run killed mid-way."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
+
+from l1flow_rl import BestOfNActor, NoiseActor
+from l1flow_rl.cli import main
+from l1flow_rl.workspace import finetune as finetune_job
+from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
+
+pytestmark = pytest.mark.maniskill
+
+BC = [
+    "demos.num=3",
+    "train.steps=20",
+    "eval.episodes=1",
+    "eval.num_envs=1",
+    "policy.down_dims=[16,32]",
+    "policy.timestep_embed_dim=16",
+    "task.max_episode_steps=30",
+]
+
+# 4 offline updates, then 2 rounds of 40 env steps (2 envs x 20): the first is the warm-up (the BC
+# start acts, no update), the second is followed by 0.1 x 40 = 4 updates; a checkpoint after each round.
+FT = [
+    "offline.steps=4",
+    "online.steps=80",
+    "online.warmup_steps=40",
+    "online.num_envs=2",
+    "online.frames_per_round=40",
+    "online.updates_per_step=0.1",
+    "online.checkpoint_every=40",
+    "finetune.batch_size=16",
+    "finetune.critic_hidden_dims=[32,32]",
+    "finetune.qc.num_samples=4",
+    "finetune.log_every=2",
+    "eval.episodes=2",
+    "eval.num_envs=1",
+    "task.max_episode_steps=20",
+]
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("demos")
+
+
+@pytest.fixture(scope="module")
+def bc_checkpoint(tmp_path_factory, data_dir):
+    run_dir = tmp_path_factory.mktemp("bc") / "run"
+    assert main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *BC]) == 0
+    return run_dir / "checkpoints" / "latest.pt"
+
+
+def _args(run_dir, data_dir, bc_checkpoint, *extra):
+    return [
+        "finetune",
+        f"checkpoint={bc_checkpoint}",
+        f"data_dir={data_dir}",
+        f"run_dir={run_dir}",
+        *FT,
+        *extra,
+    ]
+
+
+@pytest.fixture(scope="module")
+def finetuned(tmp_path_factory, data_dir, bc_checkpoint):
+    run_dir = tmp_path_factory.mktemp("ft") / "run"
+    assert main(_args(run_dir, data_dir, bc_checkpoint, "finetune=qc")) == 0
+    return run_dir
+
+
+def _differing(a: dict, b: dict) -> list[str]:
+    return [k for k in a if isinstance(a[k], torch.Tensor) and not torch.equal(a[k], b[k])]
+
+
+def test_qc_validates_the_start_then_fine_tunes_offline_and_online(finetuned):
+    result = json.loads((finetuned / "eval.json").read_text())
+    assert result["episodes"] == 2 and result["split"] == "test" and 0.0 <= result["success_once"] <= 1.0
+    state = load_checkpoint(finetuned / "checkpoints" / "latest.pt")
+    assert state["progress"] == {
+        "offline_updates": 4,
+        "online_updates": 4,
+        "env_steps": 80,
+        "rounds": 2,
+        "started": True,
+    }
+    assert (finetuned / "checkpoints" / state["online_buffer"]).is_dir()
+    history = json.loads((finetuned / "history.json").read_text())
+    evals = history["evals"]
+    assert evals[0]["phase"] == "start" and evals[0]["step"] == 0  # the BC start competes
+    rounds = history["rounds"]
+    assert [r["env_steps"] for r in rounds] == [40, 80] and [r["policy"] for r in rounds] == [
+        "start",
+        "actor",
+    ]
+    assert [r["updates"] for r in rounds] == [0, 4] and rounds[1]["updates_per_s"] > 0
+    assert all(r["env_steps_per_s"] > 0 and r["steps_stored"] == 40 for r in rounds)
+    summary = json.loads((finetuned / "summary.json").read_text())
+    assert summary["algorithm"] == "qc" and summary["online_updates"] == 4
+
+
+def test_the_checkpoint_rebuilds_the_best_of_n_actor_for_eval(tmp_path, finetuned):
+    actor, cfg = load_actor(finetuned / "checkpoints" / "latest.pt")
+    assert (
+        isinstance(actor, BestOfNActor) and actor.num_samples == 4 and cfg.policy.finetune.algorithm == "qc"
+    )
+    out = tmp_path / "eval"
+    ckpt = finetuned / "checkpoints" / "latest.pt"
+    args = ["eval", f"checkpoint={ckpt}", "eval.episodes=1", "eval.num_envs=1", "task.max_episode_steps=20"]
+    assert main([*args, f"run_dir={out}"]) == 0
+
+
+def test_resume_of_an_online_run_killed_mid_way_matches_an_uninterrupted_run(
+    tmp_path, data_dir, bc_checkpoint, finetuned, monkeypatch
+):
+    """Killed during the second round's updates, resumed from the checkpoint after the first round:
+    the same weights, critics, optimiser, buffers, logged rounds as the uninterrupted run (evaluation
+    off here, which also shows that evaluating leaves training untouched)."""
+    run_dir = tmp_path / "run"
+    args = _args(run_dir, data_dir, bc_checkpoint, "finetune=qc", "eval.episodes=0")
+    real_update, calls = finetune_job.update, {"n": 0}
+
+    def crashing_update(*a, **k):
+        calls["n"] += 1
+        if calls["n"] == 4 + 2:  # the second of the online updates
+            raise RuntimeError("simulated kill")
+        return real_update(*a, **k)
+
+    monkeypatch.setattr(finetune_job, "update", crashing_update)
+    with pytest.raises(RuntimeError, match="simulated kill"):
+        main(args)
+    assert load_checkpoint(run_dir / "checkpoints" / "latest.pt")["progress"]["env_steps"] == 40
+    monkeypatch.setattr(finetune_job, "update", real_update)
+    assert main([*args, "resume=true"]) == 0
+    resumed = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    straight = load_checkpoint(finetuned / "checkpoints" / "latest.pt")
+    assert resumed["progress"] == straight["progress"]
+    assert _differing(resumed["model"], straight["model"]) == []
+    assert _differing(resumed["loss"], straight["loss"]) == []
+    assert _differing(resumed["buffers"], straight["buffers"]) == []
+    assert resumed["history"]["loss_qvalue"] == straight["history"]["loss_qvalue"]
+    strip = lambda rows: [{k: v for k, v in r.items() if not k.endswith("_per_s")} for r in rows]  # noqa: E731
+    assert strip(resumed["records"]["rounds"]) == strip(straight["records"]["rounds"])
+
+
+def test_dsrl_online_stores_the_chunk_noise_and_leaves_the_flow_as_it_was(tmp_path, data_dir, bc_checkpoint):
+    run_dir = tmp_path / "dsrl"
+    overrides = [
+        "finetune=dsrl",
+        "offline.steps=0",
+        "finetune.dsrl.actor_hidden_dims=[32]",
+        "eval.episodes=0",
+    ]
+    assert main(_args(run_dir, data_dir, bc_checkpoint, *overrides)) == 0
+    state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    assert state["progress"]["online_updates"] == 4 and state["progress"]["offline_updates"] == 0
+    actor, _ = load_actor(run_dir / "checkpoints" / "latest.pt")
+    assert isinstance(actor, NoiseActor)
+    bc = load_checkpoint(bc_checkpoint)
+    flow = {k[len("flow.") :]: v for k, v in state["model"].items() if k.startswith("flow.")}
+    assert flow and all(torch.equal(v, bc["ema"][k]) for k, v in flow.items())  # frozen
