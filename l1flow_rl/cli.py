@@ -12,6 +12,13 @@ Every run gets its own directory (``run_dir``; by default ``hydra.run.dir`` of `
 ``<num>_<task>_<policy>_seed<seed>`` folder per job. Before any work, every job's config is composed and
 validated (:mod:`l1flow_rl.config.validate`); a bad key or value exits with code 2, naming it.
 
+Errors a user can fix (:class:`~l1flow_rl.errors.UserInputError`: a missing or corrupt data file or
+checkpoint, a busy run directory, a run that diverged) print one line,
+``l1flow-rl <command>: <what is wrong and what to do>``, and exit with code 2; other exceptions are
+bugs and keep their traceback. ``--debug`` (or ``HYDRA_FULL_ERROR=1``) shows the traceback of every
+error. A run stopped by SIGTERM or SIGUSR1 checkpoints, prints the command that resumes it and exits
+with 128 + the signal's number.
+
 The commands run through hydra's own ``Hydra`` object, as ``@hydra.main`` does, but without its
 error reporter, which turns every exception into exit code 1: here exceptions keep their type and
 a command's return value is the exit code.
@@ -19,8 +26,10 @@ a command's return value is the exit code.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import os
+import shlex
 import sys
 import textwrap
 from collections.abc import Callable, Sequence
@@ -38,6 +47,8 @@ from omegaconf.errors import OmegaConfBaseException
 from l1flow_rl.config import CONFIG_DIR, AppConfig
 from l1flow_rl.config.overrides import open_dict_overrides
 from l1flow_rl.config.validate import ConfigValidationError, validate_config
+from l1flow_rl.errors import RunPreempted, UserInputError
+from l1flow_rl.workspace.run_lock import hold_run_dir
 
 __all__ = ["COMMANDS", "RUN_DIRS", "compose_config", "main"]
 
@@ -161,8 +172,29 @@ def _sweep_jobs(overrides: Sequence[str]) -> list[list[str]]:
     return [job for batch in BasicSweeper.split_arguments(parsed, None) for job in batch]
 
 
+_debug_flag = False  # --debug of the running command
+
+
+def _debug() -> bool:
+    return _debug_flag or os.environ.get("HYDRA_FULL_ERROR") == "1"
+
+
+def _user_error(command: str, err: UserInputError) -> int:
+    print(f"l1flow-rl {command}: {err}", file=sys.stderr)
+    return 2
+
+
+def _resume_command(command: str, overrides: Sequence[str], run_dir: Path) -> str:
+    """The command line that continues a stopped run: its overrides, resume=true, its run_dir."""
+    kept = [o for o in overrides if o.lstrip("+").split("=", 1)[0] not in ("run_dir", "resume")]
+    words = ["l1flow-rl", command, *kept, "resume=true", f"run_dir={run_dir}"]
+    return " ".join(shlex.quote(w) for w in words)
+
+
 def _job(command: str, func: Callable[[DictConfig], Any]) -> Callable[[DictConfig], int]:
-    """The task function hydra runs: ``run_dir`` becomes the job's output directory."""
+    """The task function hydra runs: ``run_dir`` becomes the job's output directory; a user's
+    error is one line and exit code 2 (a sweep goes on with its next job)."""
+    from l1flow_rl.config.overrides import user_overrides
 
     def task(cfg: DictConfig) -> int:
         out = Path(HydraConfig.get().runtime.output_dir)
@@ -173,7 +205,15 @@ def _job(command: str, func: Callable[[DictConfig], Any]) -> Callable[[DictConfi
         with open_dict(cfg):
             cfg.run_dir = shown
         OmegaConf.resolve(cfg)
-        return int(func(cfg) or 0)
+        try:
+            return int(func(cfg) or 0)
+        except UserInputError as err:
+            if _debug():
+                raise
+            return _user_error(command, err)
+        except RunPreempted as stop:  # the exact command that resumes this job, sweep or not
+            stop.resume_command = _resume_command(command, user_overrides(), stop.run_dir)
+            raise
 
     task.__name__ = task.__qualname__ = f"l1flow_rl_{command}"
     return task
@@ -205,6 +245,7 @@ def _usage(command: str | None = None, hydra: Any = None, overrides: Sequence[st
         "  -m / --multirun   a sweep, one run per combination: -m seed=0,1,2 policy=l1flow,ddpm",
         "  --cfg job         print the composed config and exit",
         "  --config-dir DIR  also search DIR for configs (your own task/*.yaml, policy/*.yaml, ...)",
+        "  --debug           show the traceback of every error (also: HYDRA_FULL_ERROR=1)",
         "",
         f"config groups (files under {CONFIG_DIR}; pick one with group=option):",
     ]
@@ -219,6 +260,8 @@ def _usage(command: str | None = None, hydra: Any = None, overrides: Sequence[st
 
 
 def _invalid(command: str, err: Exception) -> int:
+    if _debug():
+        raise err
     cause = (
         f"\n  cause: {err.__cause__}" if err.__cause__ and not isinstance(err, ConfigValidationError) else ""
     )
@@ -230,7 +273,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``l1flow-rl COMMAND ...``; returns the exit code (2: bad command line or config)."""
     from hydra._internal.utils import get_args_parser
 
+    global _debug_flag
     args = list(sys.argv[1:] if argv is None else argv)
+    _debug_flag = "--debug" in args  # tracebacks for every error, as hydra's HYDRA_FULL_ERROR=1
+    args = [a for a in args if a != "--debug"]
     if not args or args[0] in ("-h", "--help", "help"):
         hydra = _create_hydra("help")
         try:
@@ -275,6 +321,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 print(_usage(command, hydra, overrides))
             return 0
         return _run(command, hydra, hargs, overrides)
+    except UserInputError as err:  # raised outside a job (the run directory's lock)
+        if _debug():
+            raise
+        return _user_error(command, err)
+    except RunPreempted as stop:
+        resume = getattr(stop, "resume_command", None) or "the same command plus resume=true"
+        print(f"l1flow-rl {command}: {stop}\n  resume with: {resume}", file=sys.stderr)
+        return stop.exit_code
     finally:
         GlobalHydra.instance().clear()
 
@@ -319,7 +373,14 @@ def _run(command: str, hydra: Any, hargs: Any, overrides: list[str]) -> int:
     module, func, _ = COMMANDS[command]
     task = _job(command, getattr(importlib.import_module(module), func))
     if not multirun:
-        return int(hydra.run(config_name=_CONFIG_NAME, task_function=task, overrides=overrides).return_value)
+        given = [o.split("=", 1)[1] for o in overrides if o.startswith("hydra.run.dir=")]
+        with contextlib.ExitStack() as stack:
+            if given and "${" not in given[-1] and int(os.environ.get("RANK", "0")) == 0:
+                # Locked before hydra writes its record (.hydra/, the log) into the directory.
+                stack.enter_context(hold_run_dir(given[-1]))
+            return int(
+                hydra.run(config_name=_CONFIG_NAME, task_function=task, overrides=overrides).return_value
+            )
     batches = hydra.multirun(
         config_name=_CONFIG_NAME, task_function=task, overrides=[*overrides, "hydra.mode=MULTIRUN"]
     )

@@ -24,6 +24,7 @@ from l1flow_rl.workspace.checkpoint import (
     load_state_into,
     save_checkpoint,
 )
+from l1flow_rl.workspace.train import TRAIN_MAY_CHANGE
 
 
 def _state(value: float) -> dict:
@@ -179,9 +180,13 @@ def test_resume_accepts_changes_to_evaluation_logging_and_cadence():
         "run_dir": "runs/y",
         "resume": True,
     }
-    check_resumable(saved, _train_config(**allowed), "latest.pt")
-    for key in allowed:  # each one is allowed by RESUME_MAY_CHANGE, not by accident
-        assert any(key == p or (p.endswith(".*") and key.startswith(p[:-1])) for p in RESUME_MAY_CHANGE), key
+    check_resumable(saved, _train_config(**allowed), "latest.pt", TRAIN_MAY_CHANGE)
+    allowing = (*RESUME_MAY_CHANGE, *TRAIN_MAY_CHANGE)
+    for key in allowed:  # each one is allowed by a list (every job's, or train's), not by accident
+        assert any(key == p or (p.endswith(".*") and key.startswith(p[:-1])) for p in allowing), key
+    # The cadences are train's to allow: a job that does not list them refuses their change.
+    with pytest.raises(ResumeMismatchError, match=r"train\.log_every"):
+        check_resumable(saved, _train_config(**{"train.log_every": 1}), "latest.pt")
     # A field the checkpoint predates is not compared; one it records must still match.
     del saved["data"]["padding"]
     check_resumable(saved, _train_config(**{"data.padding": "diffusion_policy"}), "latest.pt")

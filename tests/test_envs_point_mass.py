@@ -9,7 +9,7 @@ import json
 
 import pytest
 import torch
-from doubles.point_mass import POINT_MASS_TASK, PointMassEnv
+from doubles.point_mass import POINT_MASS_TASK, TASK_OVERRIDES, PointMassEnv
 from doubles.point_mass.env import OBS_DIM, episode_start, expert_action
 from l1flow_rl.envs import get_simulator, make_env
 from l1flow_rl.envs.contract import ContractError, check_env_contract
@@ -20,14 +20,6 @@ from torchrl.envs.utils import check_env_specs, step_mdp
 from l1flow_rl import evaluate
 
 CHUNK = 4
-TASK_OVERRIDES = [
-    "task.name=point_mass_reach",
-    "task.simulator=point_mass",
-    "task.env_id=PointMassReach-v0",
-    "task.control_mode=acceleration",
-    "task.control=absolute",
-    "task.max_episode_steps=30",
-]
 
 
 def test_make_env_stacks_history_and_resets_per_env_from_seeds():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 import torch
@@ -80,7 +81,7 @@ def test_train_run_records_its_config_and_overrides(full_run):
 
 
 def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(
-    tmp_path, data_dir, full_run, monkeypatch
+    tmp_path, data_dir, full_run, monkeypatch, capsys
 ):
     run_dir = tmp_path / "run"
     real_step = Trainer.train_step
@@ -98,8 +99,10 @@ def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(
     assert crashed["elapsed"]["since_step"] == 0 and crashed["elapsed"]["train"] > 0
     monkeypatch.setattr(Trainer, "train_step", real_step)
 
-    with pytest.raises(FileExistsError, match="resume=true"):
-        main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY])
+    # Errors the user can fix: one message on stderr, exit code 2 (the CLI decides by type).
+    capsys.readouterr()
+    assert main(["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY]) == 2
+    assert "already holds a run" in capsys.readouterr().err
     base = ["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY, "resume=true"]
     for change, field in [
         ("policy.down_dims=[16,64]", r"policy\.down_dims"),  # the network
@@ -107,8 +110,11 @@ def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(
         ("demos.num=4", r"demos\.num: checkpoint has 3, config asks for 4"),  # the dataset
         ("policy.loss_kwargs.loss_type=mse", r"policy\.loss_kwargs\.loss_type"),  # the loss
     ]:
-        with pytest.raises(ResumeMismatchError, match=field):
-            main([*base, change])
+        assert main([*base, change]) == 2
+        assert re.search(rf"^l1flow-rl train: resume=true: .*\n(  .*\n)*  {field}", capsys.readouterr().err)
+        with pytest.raises(ResumeMismatchError, match=field):  # the type the CLI decided by
+            main(["--debug", *base, change])
+        capsys.readouterr()
 
     # Checkpoint cadence may change on resume; the result is still the uninterrupted run's.
     assert main([*base, "train.checkpoint_every=10"]) == 0

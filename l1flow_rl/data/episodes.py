@@ -42,6 +42,8 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
+from l1flow_rl.errors import UserInputError
+
 __all__ = [
     "EpisodeDataError",
     "assemble_episode",
@@ -52,7 +54,7 @@ __all__ = [
 ]
 
 
-class EpisodeDataError(ValueError):
+class EpisodeDataError(UserInputError, ValueError):
     """Demonstration data that cannot be used; the message names the file, episode and key."""
 
 

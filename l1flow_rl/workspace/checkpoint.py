@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import fnmatch
 import os
+import pickle
 import random
+import re
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -19,13 +21,17 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.errors import CheckpointReadError, UserInputError
 
 __all__ = [
     "RESUME_MAY_CHANGE",
     "CheckpointMismatchError",
+    "CheckpointNotFoundError",
+    "CheckpointReadError",
     "ResumeMismatchError",
     "check_compatible",
     "check_resumable",
+    "first_non_finite",
     "get_buffer_rng",
     "get_rng_state",
     "load_actor",
@@ -54,19 +60,15 @@ _IDENTITY_FIELDS = (
 _IDENTITY_DEFAULTS = {"policy.timestep_scale": 1.0}
 
 
-#: Config fields a resumed run may set differently from the run it continues (dotted, ``*`` matches
-#: any rest): evaluation, logging and checkpoint cadence, where things run, and the evaluation-only
-#: env options. Every other field (the task and its data: ``task.*``, ``demos.*``, ``data.*``,
-#: ``seed``; the schedule: ``train.steps``, ``batch_size``, ``lr``, ...; the method and network:
-#: ``policy.*``) must match, or the resumed run would not be the run it claims to continue.
+#: Config fields a resumed run of any job may set differently from the run it continues (dotted,
+#: ``*`` matches any rest): evaluation, the logger, where things run, and the evaluation-only env
+#: options. Each job adds its own (its cadences, say) with ``check_resumable(..., may_change=...)``.
+#: Every other field (the task and its data: ``task.*``, ``demos.*``, ``data.*``, ``seed``; the
+#: schedule; the method and network: ``policy.*``) must match, or the resumed run would not be the
+#: run it claims to continue.
 RESUME_MAY_CHANGE: tuple[str, ...] = (
     "eval.*",
-    "train.log_every",
-    "train.checkpoint_every",
-    "train.eval_every",
     "train.logger",
-    "train.prefetch",  # sampling threads: speed only (resume is bit-exact only with 0)
-    "train.compile",  # the same network, compiled or not
     "task.max_episode_steps",  # the evaluation horizon; the demonstrations are already made
     "task.env",  # simulator options of the evaluation env
     "task.env.*",
@@ -74,13 +76,16 @@ RESUME_MAY_CHANGE: tuple[str, ...] = (
     "data_dir",  # where the demonstrations cache lives, not which demonstrations
     "run_dir",
     "resume",
-    "checkpoint",
-    "toy.*",
+    "toy.*",  # the toy command's group: no training job reads it
 )
 
 
-class CheckpointMismatchError(ValueError):
+class CheckpointMismatchError(UserInputError, ValueError):
     """The checkpoint was made for another task or network than the one asked for."""
+
+
+class CheckpointNotFoundError(CheckpointReadError, FileNotFoundError):
+    """No checkpoint where one was named."""
 
 
 class ResumeMismatchError(CheckpointMismatchError):
@@ -113,20 +118,70 @@ def save_checkpoint(path: str | Path, state: Mapping[str, Any]) -> Path:
 
 
 def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    """Load with ``weights_only=True``: tensors and builtins only, never arbitrary code."""
+    """Load with ``weights_only=True``: tensors and builtins only, never arbitrary code.
+
+    A missing, truncated or foreign file raises :class:`~l1flow_rl.errors.CheckpointReadError`
+    naming the file. A file holding other Python objects is refused without torch's advice to
+    retry with ``weights_only=False``, which would run whatever code the file carries.
+    """
     path = Path(path)
     if path.is_dir():
         path = path / "latest.pt"
     if not path.is_file():
-        raise FileNotFoundError(f"checkpoint {str(path)!r} does not exist")
+        raise CheckpointNotFoundError(f"checkpoint {str(path)!r} does not exist")
     try:
         state = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as err:  # torn or foreign file: say which file
-        raise ValueError(f"checkpoint {str(path)!r} cannot be read safely: {err}") from err
+    except pickle.UnpicklingError as err:  # objects beyond tensors and builtins: not ours
+        found = re.search(r"GLOBAL (\S+)", str(err))
+        what = f" (it holds {found.group(1)})" if found else ""
+        raise CheckpointReadError(
+            f"checkpoint {str(path)!r} cannot be read safely{what}: it is not an l1flow-rl checkpoint, "
+            "whose entries are tensors and builtins only"
+        ) from None  # torch's message advises weights_only=False: never, for a file of unknown origin
+    except Exception as err:  # torn, empty or not a torch file at all
+        raise CheckpointReadError(
+            f"checkpoint {str(path)!r} cannot be read safely: it is truncated or not a torch checkpoint "
+            f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else 'no data'}); "
+            "use another checkpoint, e.g. best.pt or the run's previous latest.pt"
+        ) from err
+    if not isinstance(state, dict):
+        raise CheckpointReadError(f"checkpoint {str(path)!r} holds a {type(state).__name__}, not a dict")
     for key in ("model", "config"):
         if key not in state:
-            raise ValueError(f"checkpoint {str(path)!r} has no {key!r} entry; is it an l1flow-rl checkpoint?")
+            raise CheckpointReadError(
+                f"checkpoint {str(path)!r} has no {key!r} entry; is it an l1flow-rl checkpoint?"
+            )
     return state
+
+
+def first_non_finite(state: Mapping[str, Any], prefix: str = "") -> str | None:
+    """The dotted name of the first floating-point tensor in ``state`` (nested mappings and lists)
+    holding a NaN or an infinity, or None. One host read per device when all are finite.
+
+    >>> nan = torch.tensor([1.0, float("nan")])
+    >>> first_non_finite({"model": {"w": torch.ones(2)}, "optimizer": {"m": [nan]}})
+    'optimizer.m.0'
+    """
+    found: list[tuple[str, torch.Tensor]] = []
+
+    def walk(node: Any, name: str) -> None:
+        if isinstance(node, torch.Tensor):
+            if node.is_floating_point() and node.numel():
+                found.append((name, node))
+        elif isinstance(node, Mapping):
+            for key, value in node.items():
+                walk(value, f"{name}{key}.")
+        elif isinstance(node, (list, tuple)):
+            for i, value in enumerate(node):
+                walk(value, f"{name}{i}.")
+
+    walk(state, prefix)
+    by_device: dict[torch.device, list[torch.Tensor]] = {}
+    for _, tensor in found:
+        by_device.setdefault(tensor.device, []).append(tensor.isfinite().all())
+    if all(bool(torch.stack(flags).all()) for flags in by_device.values()):
+        return None
+    return next(name[:-1] for name, tensor in found if not bool(tensor.isfinite().all()))
 
 
 def _select(cfg: Mapping[str, Any], dotted: str) -> Any:
@@ -170,11 +225,14 @@ def _flatten(node: Any, prefix: str = "") -> dict[str, Any]:
 
 
 def check_resumable(
-    saved_cfg: Mapping[str, Any], cfg: DictConfig | Mapping[str, Any], path: str = ""
+    saved_cfg: Mapping[str, Any],
+    cfg: DictConfig | Mapping[str, Any],
+    path: str = "",
+    may_change: tuple[str, ...] = (),
 ) -> None:
     """Raise :class:`ResumeMismatchError` naming every field that differs from the checkpoint's
-    config, except those in :data:`RESUME_MAY_CHANGE`. A field the checkpoint does not record
-    (it predates the field) is not compared.
+    config, except those in :data:`RESUME_MAY_CHANGE` and the job's own ``may_change``. A field
+    the checkpoint does not record (it predates the field) is not compared.
 
     Example:
         >>> saved = {"train": {"steps": 100, "log_every": 10}, "demos": {"num": 5}}
@@ -187,17 +245,18 @@ def check_resumable(
     """
     current = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
     old, new = _flatten(saved_cfg), _flatten(current)
+    allowed = (*RESUME_MAY_CHANGE, *may_change)
     diffs = [
         f"{key}: checkpoint has {old[key]!r}, config asks for {new.get(key)!r}"
         for key in old
-        if old[key] != new.get(key) and not any(fnmatch.fnmatchcase(key, p) for p in RESUME_MAY_CHANGE)
+        if old[key] != new.get(key) and not any(fnmatch.fnmatchcase(key, p) for p in allowed)
     ]
     if diffs:
         raise ResumeMismatchError(
             f"resume=true: checkpoint {path!r} was trained with another config:\n  "
             + "\n  ".join(diffs)
             + "\nOn resume only these may change: "
-            + ", ".join(RESUME_MAY_CHANGE)
+            + ", ".join(allowed)
             + ". To change the others, start a new run (drop resume=true)."
         )
 

@@ -20,11 +20,12 @@ def logger_kwargs(
     project: str = "l1flow-rl",
     group: str | None = None,
     run_name: str | None = None,
+    default_name: str = "train",
     config: dict | None = None,
 ) -> dict[str, Any]:
     """Keyword arguments of TorchRL's ``get_logger`` for ``train.logger=kind``: logs under
-    ``run_dir/logs``; W&B also gets its project, group, run name (default: the run directory's
-    name) and the run's config."""
+    ``run_dir/logs``, named ``run_name`` (default: ``default_name``, the job's; on W&B the run
+    directory's name); W&B also gets its project, group and the run's config."""
     from l1flow_rl.config.train import LOGGERS
 
     if kind not in LOGGERS:
@@ -32,7 +33,7 @@ def logger_kwargs(
     kwargs: dict[str, Any] = {
         "logger_type": kind,
         "logger_name": str(run_dir / "logs"),
-        "experiment_name": run_name or ("train" if kind != "wandb" else run_dir.name),
+        "experiment_name": run_name or (default_name if kind != "wandb" else run_dir.name),
     }
     if kind == "wandb":
         wandb = {"project": project, "config": config or {}}
@@ -44,7 +45,7 @@ def logger_kwargs(
 
 def make_logger(kind: str, run_dir: Path, state: dict | None, **options: Any):
     """The run's logger; ``state`` (a saved ``logger.state_dict()``) resumes it. ``options`` are
-    :func:`logger_kwargs`' (project, group, run_name, config)."""
+    :func:`logger_kwargs`' (project, group, run_name, default_name, config)."""
     from torchrl.record.loggers import get_logger
 
     kwargs = logger_kwargs(kind, run_dir, **options)

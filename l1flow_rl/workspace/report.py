@@ -53,14 +53,18 @@ def save_plots(
 
 
 def save_history(
-    history: Mapping[str, Sequence[float]], evals: Sequence[Mapping[str, Any]], run_dir: Path
+    history: Mapping[str, Sequence[float]],
+    evals: Sequence[Mapping[str, Any]],
+    run_dir: Path,
+    **records: Sequence[Any],
 ) -> Path:
-    """``history.json``: the logged training curve and every evaluation during training (what
-    ``benchmarks/`` reads for convergence curves)."""
+    """``history.json``: the logged training curve, every evaluation during training (what
+    ``benchmarks/`` reads for convergence curves) and the job's other ``records`` (e.g. rounds)."""
     import json
 
     path = run_dir / "history.json"
-    path.write_text(json.dumps({"train": dict(history), "evals": list(evals)}, indent=1) + "\n")
+    body = {"train": dict(history), "evals": list(evals), **{k: list(v) for k, v in records.items()}}
+    path.write_text(json.dumps(body, indent=1) + "\n")
     return path
 
 

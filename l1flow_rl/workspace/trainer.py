@@ -39,7 +39,8 @@ def warmup_cosine(warmup_steps: int, total_steps: int):
 
 
 class _SummedLoss(nn.Module):
-    """Sum of a loss module's ``loss_*`` entries plus its detached diagnostics.
+    """Sum of a loss module's ``loss_*`` entries, plus each term (detached, so that a non-finite
+    sum can be traced to its term) and the loss's diagnostics.
 
     DDP needs a module whose forward returns the tensors backward starts from; it cannot look
     inside a TensorDict, so this returns (scalar, dict).
@@ -52,7 +53,7 @@ class _SummedLoss(nn.Module):
     def forward(self, batch: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
         out = self.loss_fn(batch)
         loss = sum(v for k, v in out.items() if k.startswith("loss_"))
-        return loss, {k: v for k, v in out.items() if not k.startswith("loss_")}
+        return loss, {k: v.detach() for k, v in out.items()}
 
 
 class Trainer:
@@ -113,9 +114,10 @@ class Trainer:
     def train_step(self, batch: TensorDictBase) -> dict[str, Tensor | float]:
         """One update on ``batch``; returns its metrics without waiting for the device.
 
-        ``loss``, ``grad_norm`` (before clipping) and the loss's scalar diagnostics are detached
-        0-dim tensors on the training device, ``lr`` (the scheduler's rate after this step) a float: call
-        ``float()`` on them only when they are logged, since each read waits for the device.
+        ``loss`` (the sum of the ``loss_*`` terms, also returned one by one), ``grad_norm`` (before
+        clipping) and the loss's scalar diagnostics are detached 0-dim tensors on the training
+        device, ``lr`` (the scheduler's rate after this step) a float: call ``float()`` on them only
+        when they are logged, since each read waits for the device.
         """
         device_type = next(self.actor.parameters()).device.type
         autocast = torch.autocast(device_type, dtype=torch.bfloat16) if self.amp else contextlib.nullcontext()

@@ -17,7 +17,7 @@ from l1flow_rl.experts import ExpertSpec, register_expert
 
 from .env import ENV_IDS, PointMassEnv
 
-__all__ = ["EXPERT", "POINT_MASS_TASK", "SIMULATOR", "PointMassEnv", "make_point_mass_env"]
+__all__ = ["EXPERT", "POINT_MASS_TASK", "SIMULATOR", "TASK_OVERRIDES", "PointMassEnv", "make_point_mass_env"]
 
 #: The task config a user would put in ``configs/task/point_mass_reach.yaml``.
 POINT_MASS_TASK = TaskConfig(
@@ -30,6 +30,16 @@ POINT_MASS_TASK = TaskConfig(
     max_episode_steps=30,
     reward_mode="normalized_dense",
 )
+
+#: The same task on the command line (``l1flow-rl train ...``, ``compose_config``).
+TASK_OVERRIDES = [
+    "task.name=point_mass_reach",
+    "task.simulator=point_mass",
+    "task.env_id=PointMassReach-v0",
+    "task.control_mode=acceleration",
+    "task.control=absolute",
+    "task.max_episode_steps=30",
+]
 
 
 def make_point_mass_env(

@@ -1,0 +1,478 @@
+"""The run harness: what every job that trains shares, so that a job is its loop plus a config.
+
+A job (``l1flow-rl train``, fine-tuning, a distillation step) builds its data and model, then
+gives the harness ``state()`` (its checkpoint pieces: weights, optimiser, sampler or replay-buffer
+state, its counters) and ``load(state)``. :class:`Run` does the rest:
+
+- the run directory, locked to this process (:mod:`~l1flow_rl.workspace.run_lock`); seeding;
+  the config record (``config.yaml``); the logger (``train.logger``);
+- resume (``resume=true``): ``checkpoints/latest.pt`` continues if the config changes only fields
+  of :data:`~l1flow_rl.workspace.checkpoint.RESUME_MAY_CHANGE` or of the job's ``may_change``,
+  and then ends where an uninterrupted run ends (bit-exact on CPU);
+- atomic checkpoints: the job's pieces plus every RNG, the clock, the history, the evaluations,
+  the best validation figure and the logger's state; a state holding a NaN is never written;
+- a non-finite metric (loss, a ``loss_*`` term, ``grad_norm``) stops the run with
+  :class:`~l1flow_rl.errors.RunDivergedError`, checked when metrics are read anyway (log,
+  evaluation and checkpoint steps), so the loop never waits for the device on other steps;
+- SIGTERM or SIGUSR1 (a cluster's pre-emption): a checkpoint at the current step, then
+  :class:`RunPreempted`, which says how to resume;
+- validation -> ``best.pt`` -> the test evaluation of the chosen weights (``eval.json``);
+- ``summary.json`` (with the clocks over every invocation and the machine), ``history.json``, plots.
+
+Under torchrun every rank calls every method; rank 0 alone touches files, logs and evaluates
+(:func:`~l1flow_rl.workspace.distributed.run_on_rank0`), and all ranks stop at the same step.
+
+Example, a job whose counter is its updates (:mod:`l1flow_rl.workspace.train` is the real one)::
+
+    def run_distill(cfg):
+        with Run(cfg, job="distill", device=device, may_change=("distill.log_every",),
+                 log_every=cfg.distill.log_every, checkpoint_every=1000, eval_every=5000) as run:
+            student, opt, data = ...  # built after Run: it has seeded every RNG
+            step = 0
+
+            def load(state):
+                nonlocal step
+                student.load_state_dict(state["model"]); opt.load_state_dict(state["optimizer"])
+                step = state["step"]
+
+            run.begin(lambda: {"model": student.state_dict(), "optimizer": opt.state_dict(),
+                               "step": step}, load, step=lambda: step, total=cfg.distill.steps)
+            while step < cfg.distill.steps:
+                loss = ...; step += 1
+                run.step_done(step, {"loss": loss.detach()}, student)
+            run.finish(student, {"task": cfg.task.name, "steps": step})
+
+A loop counted in environment steps calls ``step_done(env_steps, metrics, actor)`` after each
+collection round (cadences then count environment steps), or the parts on their own schedule:
+:meth:`Run.log`, :meth:`Run.validate`, :meth:`Run.save` and :meth:`Run.check_signal`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import random
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from omegaconf import DictConfig, OmegaConf
+
+from l1flow_rl.errors import RunDirectoryError, RunDivergedError, RunPreempted
+from l1flow_rl.evaluation.evaluator import sampler_record
+from l1flow_rl.workspace.checkpoint import (
+    check_resumable,
+    first_non_finite,
+    get_rng_state,
+    load_actor,
+    load_checkpoint,
+    save_checkpoint,
+    set_rng_state,
+)
+from l1flow_rl.workspace.distributed import run_on_every_rank, run_on_rank0
+from l1flow_rl.workspace.logging import make_logger
+from l1flow_rl.workspace.machine import machine_info
+from l1flow_rl.workspace.report import format_summary, save_history, save_plots
+from l1flow_rl.workspace.run_clock import RunClock
+from l1flow_rl.workspace.run_lock import hold_run_dir
+
+__all__ = ["STOP_SIGNALS", "Run", "RunPreempted", "seed_everything"]
+
+#: signals that stop a run with a checkpoint: SIGTERM (schedulers, ``kill``), SIGUSR1 (SLURM's
+#: ``--signal`` warning before the time limit)
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGUSR1)
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+class Run:
+    """One run of a job in ``cfg.run_dir``: use it as a context manager (see the module docstring).
+
+    Entering it locks the run directory (rank 0), seeds every RNG with ``seed`` (default
+    ``cfg.seed`` + rank), reads and checks the checkpoint that ``resume=true`` continues
+    (:attr:`resumed`), makes the evaluator (``cfg.eval``; before any data is made, so a bad
+    protocol fails first) and catches :data:`STOP_SIGNALS`.
+
+    Args:
+        cfg: the run's composed config (``run_dir``, ``resume``, ``seed``, ``train.logger``, ``eval``).
+        job: the job's name (messages, the logger's default run name).
+        device: where evaluations run.
+        may_change: config fields (``fnmatch`` patterns) this job lets a resume change, beside
+            :data:`~l1flow_rl.workspace.checkpoint.RESUME_MAY_CHANGE`.
+        phases: the clock's phases (:class:`~l1flow_rl.workspace.run_clock.RunClock`).
+        log_every, checkpoint_every, eval_every: cadences of :meth:`step_done`, in the job's step
+            unit (0 turns checkpoints or validation during training off).
+        history_keys: the metrics kept in ``history.json`` beside ``step`` (all are logged).
+    """
+
+    def __init__(
+        self,
+        cfg: DictConfig,
+        *,
+        job: str,
+        device: torch.device,
+        may_change: tuple[str, ...] = (),
+        phases: tuple[str, ...] = ("train",),
+        log_every: int = 50,
+        checkpoint_every: int = 1000,
+        eval_every: int = 0,
+        history_keys: tuple[str, ...] = ("loss", "lr"),
+        seed: int | None = None,
+    ) -> None:
+        self.cfg, self.job, self.device, self.may_change = cfg, job, device, tuple(may_change)
+        self.rank = dist.get_rank() if dist.is_available() and dist.is_initialized() else 0
+        self.seed = cfg.seed + self.rank if seed is None else seed
+        self.run_dir = Path(cfg.run_dir)
+        self.ckpt_dir = self.run_dir / "checkpoints"
+        self.latest, self.best_path = self.ckpt_dir / "latest.pt", self.ckpt_dir / "best.pt"
+        self.config = OmegaConf.to_container(cfg, resolve=True)  # recorded in every checkpoint
+        self.log_every, self.checkpoint_every, self.eval_every = log_every, checkpoint_every, eval_every
+        self.phases = phases
+        self.history: dict[str, list[float]] = {"step": [], **{k: [] for k in history_keys}}
+        self.evals: list[dict[str, Any]] = []
+        #: other lists the job keeps (e.g. collection rounds): checkpointed and in history.json
+        self.records: dict[str, list[Any]] = {}
+        self.best = -math.inf
+        self._validates = cfg.eval.episodes > 0  # the same on every rank (the evaluator: rank 0 only)
+        self.resumed: dict[str, Any] | None = None
+        self.evaluator: Any = None  # rank 0 only
+        self.logger: Any = None  # rank 0 only
+        self.clock: RunClock | None = None
+        self._stack = contextlib.ExitStack()
+        self._signal: int | None = None
+        self._state_fn: Callable[[], dict[str, Any]] | None = None
+        self._step_fn: Callable[[], int] = lambda: 0
+        self._prev_step = 0  # the step of the previous step_done: cadences fire on crossing a multiple
+        self._saved_step: int | None = None  # the step latest.pt holds
+        self._bar: Any = None
+        self._t_begin, self._first_step = 0.0, 0
+
+    # -- entering and leaving ----------------------------------------------------------------
+    def __enter__(self) -> Run:
+        self._stack.__enter__()
+        try:
+            self._catch_signals()
+            seed_everything(self.seed)
+            run_on_rank0(self._preflight, "locking and checking the run directory, making the evaluator")
+            self.resumed = run_on_every_rank(self._read_resumed, "reading the checkpoint to resume")
+            self.clock = RunClock(self.resumed.get("elapsed") if self.resumed else None, self.phases)
+        except BaseException:
+            self._stack.close()
+            raise
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stack.__exit__(*exc)
+
+    def _catch_signals(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return  # Python delivers signals to the main thread only
+
+        def stop(signum: int, frame: Any) -> None:
+            if self._signal is not None:  # a second signal: stop now, as without the harness
+                signal.signal(signum, signal.SIG_DFL)
+                signal.raise_signal(signum)
+            self._signal = signum
+            print(
+                f"\n{signal.Signals(signum).name}: {self.job} will checkpoint and stop after this step",
+                flush=True,
+            )
+
+        for signum in STOP_SIGNALS:
+            previous = signal.signal(signum, stop)
+            self._stack.callback(signal.signal, signum, previous)
+
+    def _preflight(self) -> None:
+        self._stack.enter_context(hold_run_dir(self.run_dir))
+        if not self.cfg.resume and self.latest.is_file():
+            raise RunDirectoryError(
+                f"run_dir {str(self.run_dir)!r} already holds a run ({self.latest}); pass resume=true to "
+                "continue it, or choose another run_dir"
+            )
+        if self.cfg.eval.episodes > 0:
+            from l1flow_rl.workspace.evaluator import PeriodicEvaluator
+
+            self.evaluator = PeriodicEvaluator(self.cfg, self.device)
+            self._stack.callback(self.evaluator.close)
+
+    def _read_resumed(self) -> dict[str, Any] | None:
+        if not self.cfg.resume:
+            return None
+        if not self.latest.is_file():
+            raise RunDirectoryError(
+                f"resume=true but {str(self.latest)!r} does not exist; pass the run's directory as "
+                "run_dir=... (every run gets a new directory by default), or drop resume=true to start fresh"
+            )
+        state = load_checkpoint(self.latest)
+        # the run's own config: "config", or "run_config" where the job's "config" rebuilds its model
+        saved = state.get("run_config", state["config"])
+        check_resumable(saved, self.cfg, str(self.latest), self.may_change)
+        return state
+
+    # -- the job's state -----------------------------------------------------------------------
+    def begin(
+        self,
+        state: Callable[[], dict[str, Any]],
+        load: Callable[[dict[str, Any]], None],
+        *,
+        step: Callable[[], int],
+        total: int | None = None,
+    ) -> None:
+        """Hand over the job's checkpoint pieces (``state()``; ``load`` restores them) and its
+        counter (``step()``), once the job has built everything that draws random numbers. A
+        resumed run is restored here (the job's pieces, then every RNG, the history, the
+        evaluations); then ``config.yaml`` is written and the logger opened. ``total``: the
+        progress bar's length."""
+        self._state_fn, self._step_fn = state, step
+        if self.resumed is not None:
+            load(self.resumed)
+            set_rng_state(self.resumed["rng"])
+            self.history, self.evals = self.resumed["history"], self.resumed["evals"]
+            self.best = float(self.resumed["best"])
+            self.records = dict(self.resumed.get("records") or {})
+            self.clock.resumed_at(step())
+            self._saved_step = step()
+        self._prev_step = self._first_step = step()
+        run_on_rank0(self._open_record, "writing config.yaml and opening the logger")
+        from tqdm import tqdm
+
+        self._bar = tqdm(
+            total=total, initial=self._first_step, desc=self.job, disable=self.rank != 0, dynamic_ncols=True
+        )
+        self._stack.callback(self._bar.close)
+        self._t_begin = time.perf_counter()
+
+    def _open_record(self) -> None:
+        OmegaConf.save(self.cfg, self.run_dir / "config.yaml")
+        tcfg = self.cfg.train
+        self.logger = make_logger(
+            tcfg.logger,
+            self.run_dir,
+            self.resumed.get("logger") if self.resumed else None,
+            project=tcfg.project,
+            group=tcfg.group,
+            run_name=tcfg.run_name,
+            default_name=self.job,
+            config=self.config,
+        )
+        if self.evaluator is not None:
+            self.evaluator.logger = self.logger  # every metric of every evaluation, and its videos
+
+    @contextlib.contextmanager
+    def phase(self, name: str) -> Iterator[None]:
+        """Count the block's seconds under ``name`` (one of ``phases``) in ``summary.json``."""
+        self.clock.start(name)
+        try:
+            yield
+        finally:
+            self.clock.stop(name)
+
+    @property
+    def step(self) -> int:
+        return self._step_fn()
+
+    def state(self) -> dict[str, Any]:
+        """A checkpoint: the job's pieces plus the harness's (RNG, clock, history, evaluations, best)."""
+        state = self._state_fn()
+        if "config" in state:  # the job's own (fine-tuning: the config that rebuilds its model)
+            state["run_config"] = self.config
+        state.setdefault("config", self.config)
+        state.update(
+            rng=get_rng_state(),
+            history=self.history,
+            evals=self.evals,
+            records=self.records,
+            best=self.best,
+            elapsed=self.clock.totals(),
+            logger=self.logger.state_dict() if hasattr(self.logger, "state_dict") else None,
+        )
+        return state
+
+    # -- one step ---------------------------------------------------------------------------
+    def _crossed(self, every: int, step: int) -> bool:
+        return every > 0 and step // every > self._prev_step // every
+
+    def step_done(
+        self, step: int, metrics: Mapping[str, torch.Tensor | float], actor: Any, *, last: bool = False
+    ) -> None:
+        """After each update (or collection round): log, validate and checkpoint on their cadences
+        (``last``: the final step, logged and checkpointed; its validation is :meth:`finish`'s),
+        stop on a signal, raise on a non-finite metric. Reads ``metrics`` to the host only then."""
+        log = last or self._crossed(self.log_every, step)
+        save = last or self._crossed(self.checkpoint_every, step)
+        validate = self._validates and not last and self._crossed(self.eval_every, step)
+        self._prev_step = step
+        if self._bar is not None:
+            self._bar.update(step - self._bar.n)
+        # Under torchrun the ranks agree on a stop at a due step; alone, any step may stop.
+        alone = not (dist.is_available() and dist.is_initialized())
+        if not (log or save or validate or (alone and self._signal is not None)):
+            return
+
+        def rank0() -> int | None:
+            if log:
+                self._log(step, metrics)
+            else:  # a checkpoint or an evaluation is due: its metrics are checked first
+                self._read(step, metrics)
+            if validate:
+                self._validate(actor, step)
+            if save:
+                self._save(self.latest)
+            return self._stop_here()
+
+        self._raise_if_stopped(run_on_rank0(rank0, f"logging/evaluating/checkpointing at step {step}"))
+
+    def _read(self, step: int, metrics: Mapping[str, torch.Tensor | float]) -> dict[str, float]:
+        values = {k: float(v) for k, v in metrics.items()}  # waits for the device: due steps only
+        bad = [k for k, v in values.items() if not math.isfinite(v)]
+        if bad:
+            bad.sort(key=lambda k: (not k.startswith("loss_"), k))  # the terms first: they name the cause
+            shown = ", ".join(f"{k}={values[k]}" for k in bad)
+            kept = (
+                f"the last checkpoint, {self.latest}, is from step {self._saved_step} and finite"
+                if self._saved_step is not None
+                else "no checkpoint was written"
+            )
+            raise RunDivergedError(
+                f"{self.job} diverged: at step {step} {shown} (metrics are read every {self.log_every} "
+                f"steps and before each checkpoint); {kept}. Lower the learning rate, or clip gradients"
+            )
+        return values
+
+    def log(self, step: int, metrics: Mapping[str, torch.Tensor | float], prefix: str = "train") -> None:
+        """Read ``metrics`` to the host, check them, keep ``history_keys`` and log them all under
+        ``prefix/`` (every rank calls it; rank 0 logs)."""
+        run_on_rank0(lambda: self._log(step, metrics, prefix), f"logging at step {step}")
+
+    def _log(self, step: int, metrics: Mapping[str, torch.Tensor | float], prefix: str = "train") -> None:
+        values = self._read(step, metrics)
+        self.history["step"].append(step)
+        for key in self.history:
+            if key != "step":
+                self.history[key].append(values.get(key, math.nan))
+        for key, value in values.items():
+            self.logger.log_scalar(f"{prefix}/{key}", value, step=step)
+        rate = (step - self._first_step) / max(time.perf_counter() - self._t_begin, 1e-9)
+        shown = {k: f"{values[k]:.4g}" for k in self.history if k in values}
+        self._bar.set_postfix(**shown, it_s=f"{rate:.1f}", refresh=False)
+
+    def validate(self, actor: Any, step: int, **row: Any) -> dict[str, Any] | None:
+        """Evaluate ``actor`` on the validation seeds; the best so far becomes ``best.pt``. ``row``:
+        extra fields of its history row (e.g. ``env_steps``). Every rank calls it; rank 0 evaluates."""
+        if not self._validates:
+            return None
+        return run_on_rank0(lambda: self._validate(actor, step, **row), f"validating at step {step}")
+
+    def _validate(self, actor: Any, step: int, **row: Any) -> dict[str, Any]:
+        result = self.evaluator(actor, step, split="val")
+        self.evals.append({**self.evaluator.history_row(result), **row})
+        value, name = result[self.evaluator.headline], self.evaluator.headline
+        self._bar.write(f"step {step}: validation {name}={value:.3f} over {result['episodes']} episodes")
+        if value > self.best:
+            self.best = value
+            self._save(self.best_path)
+        return result
+
+    def save(self) -> None:
+        """Write ``latest.pt`` now (every rank calls it; rank 0 writes)."""
+        run_on_rank0(lambda: self._save(self.latest), "writing the checkpoint")
+
+    def _save(self, path: Path) -> None:
+        state = self.state()
+        bad = first_non_finite(state)
+        if bad is not None:
+            raise RunDivergedError(
+                f"{self.job} diverged: at step {self.step} the checkpoint entry {bad} is not finite, so "
+                f"{path.name} was not written; the last checkpoint on disk is from step {self._saved_step}. "
+                "Lower the learning rate, or clip gradients"
+            )
+        save_checkpoint(path, state)
+        if path == self.latest:
+            self._saved_step = self.step
+
+    def check_signal(self) -> None:
+        """If a stop signal came: ``latest.pt`` at this step, then :class:`RunPreempted`. Under
+        torchrun every rank calls it at the same step (rank 0's signal decides)."""
+        self._raise_if_stopped(run_on_rank0(self._stop_here, "checking for a stop signal"))
+
+    def _stop_here(self) -> int | None:
+        if self._signal is not None and self.step > 0 and self._saved_step != self.step:
+            self._save(self.latest)
+        return self._signal
+
+    def _raise_if_stopped(self, signum: int | None) -> None:
+        if signum is not None:
+            saved = self.latest if self.latest.is_file() else None
+            raise RunPreempted(signum, self.step, self.run_dir, saved)
+
+    # -- the end -----------------------------------------------------------------------------
+    def finish(
+        self,
+        actor: Any,
+        summary: dict[str, Any],
+        *,
+        load_chosen: Callable[[Path], Any] | None = None,
+        plot: Callable[[Run], Any] | None = None,
+    ) -> dict[str, Any]:
+        """The final model competes on validation; the chosen weights (``best.pt``, read back with
+        ``load_chosen``, by default :func:`~l1flow_rl.workspace.checkpoint.load_actor`'s EMA
+        weights, when they are not the final ones) play the test seeds (``eval.json``); then
+        ``summary.json`` (``summary``, the test figures, the clocks, the machine), ``history.json``
+        and the plots (``plot(run)``; default: loss and success curves). Returns the summary."""
+        if self._bar is not None:
+            self._bar.close()
+        final = lambda: self._final_validation(actor)  # noqa: E731
+        self._raise_if_stopped(run_on_rank0(final, "validating the final model"))
+        report = lambda: self._report(actor, dict(summary), load_chosen, plot)  # noqa: E731
+        return run_on_rank0(report, "evaluating the chosen model and writing the report")
+
+    def _final_validation(self, actor: Any) -> int | None:
+        step = self.step
+        if self.evaluator is not None:
+            val = [e for e in self.evals if e.get("split", "val") == "val"]
+            if not val:  # no validation during training: the final model is the only candidate
+                self._save(self.best_path)
+            elif not any(e["step"] == step for e in val):  # (a resumed run may have done it already)
+                self._validate(actor, step)
+        self._save(self.latest)  # with the final evaluations: a run stopped from here on skips them
+        return self._signal
+
+    def _report(self, actor: Any, summary: dict[str, Any], load_chosen: Any, plot: Any) -> dict[str, Any]:
+        step, ev = self.step, self.evaluator
+        if ev is not None:
+            selection = ev.selection(self.evals, step)
+            chosen = actor
+            if selection["step"] != step:
+                load = load_chosen or (lambda p: load_actor(p, use_ema=True, map_location=self.device)[0])
+                chosen = load(self.best_path)
+            result = ev(chosen, step, video_dir=self.run_dir / "videos", split="test")
+            ev.close()
+            self.evals.append(ev.history_row(result))
+            result = {**result, "selection": selection, "sampler": sampler_record(chosen)}
+            (self.run_dir / "eval.json").write_text(json.dumps(result, indent=2))
+            summary.update(
+                success_once=result["success_once"],
+                success_at_end=result["success_at_end"],
+                eval_episodes=result["episodes"],
+                chunk_latency_ms_median=result.get("latency_ms_median"),
+            )
+        # Seconds over every invocation of the run; CPU is the budget when runs share the machine.
+        summary.update(self.clock.summary())
+        summary["machine"] = machine_info(self.device)  # threads and load as this invocation ended
+        (plot or (lambda run: save_plots(run.history, run.evals, run.run_dir)))(self)
+        save_history(self.history, self.evals, self.run_dir, **self.records)
+        (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+        print(format_summary(summary))
+        print(f"run directory: {self.run_dir}")
+        return summary
