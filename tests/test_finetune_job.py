@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -147,7 +148,8 @@ def test_resume_of_an_online_run_killed_mid_way_matches_an_uninterrupted_run(
     assert _differing(resumed["model"], straight["model"]) == []
     assert _differing(resumed["loss"], straight["loss"]) == []
     assert _differing(resumed["buffers"], straight["buffers"]) == []
-    assert resumed["history"]["loss_qvalue"] == straight["history"]["loss_qvalue"]
+    # logged metrics (NaN where a round had no update: the warm-up) equal, NaN included
+    np.testing.assert_array_equal(resumed["history"]["loss_qvalue"], straight["history"]["loss_qvalue"])
     strip = lambda rows: [{k: v for k, v in r.items() if not k.endswith("_per_s")} for r in rows]  # noqa: E731
     assert strip(resumed["records"]["rounds"]) == strip(straight["records"]["rounds"])
 

@@ -66,6 +66,11 @@ def update(loss, optimizer: torch.optim.Optimizer, target_update, batch: TensorD
     return {k: v.detach() for k, v in out.items()}
 
 
+def _crossed(every: int, before: int, now: int) -> bool:
+    """A multiple of ``every`` lies in (before, now]."""
+    return every > 0 and now // every > before // every
+
+
 def _check_task(bc_cfg: DictConfig, cfg: DictConfig, path: str) -> None:
     from l1flow_rl.workspace.checkpoint import CheckpointMismatchError
 
@@ -245,9 +250,8 @@ def run_finetune(cfg: DictConfig) -> int:
                         run.records["rounds"].append(record)
                         numbers = {k: float(v) for k, v in record.items() if isinstance(v, (int, float))}
                         run.log(step(), {**metrics, **numbers}, prefix="online")
-                        crossed = lambda every: every and progress["env_steps"] // every > before // every  # noqa: E731
                         last = progress["env_steps"] >= on.steps
-                        if crossed(on.eval_every) and not last:
+                        if _crossed(on.eval_every, before, progress["env_steps"]) and not last:
                             run.validate(
                                 loss.actor,
                                 step(),
@@ -255,7 +259,7 @@ def run_finetune(cfg: DictConfig) -> int:
                                 env_steps=progress["env_steps"],
                                 updates=progress["offline_updates"] + progress["online_updates"],
                             )
-                        if crossed(on.checkpoint_every) or last:
+                        if _crossed(on.checkpoint_every, before, progress["env_steps"]) or last:
                             save(dump_online=True)
                         run.step_done(step(), metrics, loss.actor)
 
@@ -267,5 +271,43 @@ def run_finetune(cfg: DictConfig) -> int:
             "online_updates": progress["online_updates"],
             "env_steps": progress["env_steps"],
         }
-        run.finish(loss.actor, summary)
+        run.finish(loss.actor, summary, plot=_plot)
     return 0
+
+
+def _plot(run) -> None:
+    """``finetune.png``: the critics' values against the run's step, and success against env steps
+    (validations, and the collected episodes of each round)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_q, ax_s) = plt.subplots(1, 2, figsize=(11, 3.8))
+    history = run.history
+    for key in ("q_data_mean", "target_mean", "td_error_abs"):
+        ax_q.plot(history["step"], history[key], lw=1, label=key)
+    ax_q.set_xlabel("offline updates + env steps")
+    ax_q.legend()
+    ax_q.grid(alpha=0.3)
+    evals = [e for e in run.evals if e.get("split", "val") == "val"]
+    if evals:
+        ax_s.plot(
+            [e.get("env_steps", 0) for e in evals],
+            [e["success_once"] for e in evals],
+            "o-",
+            label="validation",
+        )
+    rounds = run.records.get("rounds", [])
+    if rounds:
+        rate = [float("nan") if r.get("episode_success") is None else r["episode_success"] for r in rounds]
+        ax_s.plot([r["env_steps"] for r in rounds], rate, ".--", alpha=0.6, label="collected episodes")
+    ax_s.set_xlabel("environment steps")
+    ax_s.set_ylabel("success rate")
+    ax_s.set_ylim(-0.05, 1.05)
+    ax_s.grid(alpha=0.3)
+    if evals or rounds:
+        ax_s.legend()
+    fig.tight_layout()
+    fig.savefig(run.run_dir / "finetune.png", dpi=110)
+    plt.close(fig)

@@ -170,6 +170,7 @@ class RLBuffers:
 
     def dump_online(self, directory: Path) -> None:
         """The online buffer (storage, writer, generator) under ``directory``, written atomically."""
+        directory.parent.mkdir(parents=True, exist_ok=True)  # the run's first checkpoint may be this one
         tmp = directory.parent / f".{directory.name}.partial"
         shutil.rmtree(tmp, ignore_errors=True)
         self.online.dumps(tmp)
