@@ -92,7 +92,9 @@ class OnlineConfig:
     capacity: int = 0  # online steps kept; 0: all of them
     eval_every: int = 0  # env steps; 0: validate only at the start and the end
     checkpoint_every: int = 10_000  # env steps; an online checkpoint also dumps the replay buffer
-    env_seed: int = 100_000  # the first collection episode's seed (validation uses eval.seed onward)
+    # the first collection round's seeds (each round takes the next 100,000): apart from the validation
+    # (eval.val_seed, 10,000 on) and test (eval.seed, 100,000 on) seeds, so no test episode is trained on
+    env_seed: int = 1_000_000
 
 
 def round_frames(cfg) -> int:
