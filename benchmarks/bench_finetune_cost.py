@@ -38,6 +38,25 @@ from l1flow_rl.config import PolicyConfig, load_task_config
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.workspace.build import build_actor
 
+#: what each figure motivated (kept in the JSON beside the figures)
+DESIGN = {
+    "qc_proposals_share_of_update": (
+        "QC's update is the flow on 256 x N proposals: the critics and targets are small beside it; the "
+        "online runs here use N=8 and 1 update per 20 env steps (bench_finetune_online.CPU_BUDGET)"
+    ),
+    "qc_frozen_flow_over_qc_update": (
+        "freezing the flow saves only its BC term; the proposals stay, so caching them per stored window "
+        "while the flow is frozen is the next saving (not built)"
+    ),
+    "qc_critic_2x256_over_qc_update": "smaller critics do not change QC's cost (the proposals dominate)",
+    "fql_over_qc_update": "FQL costs its BC term and one 2-NFE teacher call at batch 256: 1 update per 4 env steps here",
+    "dsrl_over_qc_update": (
+        "DSRL's update never calls the flow (its critic is Q(s, w)): the plain variant keeps the preset's UTD 1"
+    ),
+    "dsrl_critic_2x256_over_dsrl_update": "DSRL's remaining cost is its MLPs: 2 x 256 critics halve it",
+    "env": "acting: QC's 32 proposals per chunk cost most (0.29x raw), FQL's one MLP call least (0.79x)",
+}
+
 
 def make_batch(batch: int, obs_dim: int, action_dim: int, policy: dict) -> TensorDict:
     to, horizon = policy["obs_horizon"], policy["pred_horizon"]
@@ -204,6 +223,7 @@ def main(argv: list[str] | None = None) -> int:
             "dsrl_critic_2x256_over_dsrl_update": ratio("dsrl_critic_2x256", "dsrl"),
         },
         "updates_per_s": {k: round(1e3 / v["update"], 2) for k, v in timings.items()},
+        "design": DESIGN,
         "env": env_row,
     }
     print(result["ratios"])
