@@ -49,9 +49,12 @@ DESIGN = {
         "while the flow is frozen is the next saving (not built)"
     ),
     "qc_critic_2x256_over_qc_update": "smaller critics do not change QC's cost (the proposals dominate)",
-    "fql_over_qc_update": "FQL costs its BC term and one 2-NFE teacher call at batch 256: 1 update per 4 env steps here",
+    "fql_over_qc_update": (
+        "FQL costs its BC term and one 2-NFE teacher call at batch 256: 1 update per 4 env steps here"
+    ),
     "dsrl_over_qc_update": (
-        "DSRL's update never calls the flow (its critic is Q(s, w)): the plain variant keeps the preset's UTD 1"
+        "DSRL's update never calls the flow (its critic is Q(s, w)): the plain variant keeps the "
+        "preset's UTD 1"
     ),
     "dsrl_critic_2x256_over_dsrl_update": "DSRL's remaining cost is its MLPs: 2 x 256 critics halve it",
     "env": "acting: QC's 32 proposals per chunk cost most (0.29x raw), FQL's one MLP call least (0.79x)",
