@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.export_report import render_export_latency
+from benchmarks.finetune_report import render_finetune_cost
 from benchmarks.sweep import convergence_steps
 from l1flow_rl.workspace.run_clock import CPU_SCOPE
 
@@ -546,7 +547,14 @@ GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
         (r"train_throughput_.*\.json", "Training step against the bare update", render_train_throughput),
         (r"export_latency\.json", "Deployable policy: exported program and ONNX", render_export_latency),
     ],
-    "Fine-tuning": [(r"flow_q_.*\.json", "Flow-Q fine-tuning against continued BC", render_flow_q)],
+    "Fine-tuning": [
+        (r"finetune_cost_.*\.json", "Fine-tuning: cost of an update and of acting", render_finetune_cost),
+        (
+            r"flow_q_.*\.json",
+            "Flow-Q fine-tuning against continued BC (the retired FlowQLoss)",
+            render_flow_q,
+        ),
+    ],
     "Simulators, experts and data": [
         (r"env_throughput_.*\.json", "Environment throughput", render_env_throughput),
         (r"sampler\.json", "Replay-buffer sampling", render_sampler),

@@ -8,21 +8,39 @@ Quick use::
 """
 
 from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.best_of_n_actor import BestOfNActor
 from l1flow_rl.ema import dp_ema_decay, make_ema
 from l1flow_rl.evaluation import evaluate
+from l1flow_rl.noise_actor import NoiseActor
 from l1flow_rl.normalizer import Normalizer, NormalizerDict
-from l1flow_rl.objectives import DiffusionLoss, FlowMatchingLoss, FlowQLoss, L1FlowLoss, RegressionLoss
+from l1flow_rl.objectives import (
+    ChunkCriticLoss,
+    DiffusionLoss,
+    DSRLLoss,
+    FlowMatchingLoss,
+    FQLLoss,
+    L1FlowLoss,
+    QCLoss,
+    RegressionLoss,
+)
+from l1flow_rl.one_step_actor import OneStepActor
 from l1flow_rl.policy import ChunkPolicy
 
 __all__ = [
+    "BestOfNActor",
+    "ChunkCriticLoss",
     "ChunkPolicy",
+    "DSRLLoss",
     "DiffusionLoss",
+    "FQLLoss",
     "FlowMatchingLoss",
-    "FlowQLoss",
     "L1FlowActor",
     "L1FlowLoss",
+    "NoiseActor",
     "Normalizer",
     "NormalizerDict",
+    "OneStepActor",
+    "QCLoss",
     "RegressionLoss",
     "dp_ema_decay",
     "evaluate",

@@ -24,8 +24,8 @@ def run_export(cfg: DictConfig) -> int:
     actor, train_cfg = load_actor(cfg.checkpoint, use_ema=True)
     if not isinstance(actor, L1FlowActor):
         raise ValueError(
-            f"checkpoint {cfg.checkpoint!r} holds a best-of-N actor (policy.best_of_n), which selects chunks "
-            "with its critics; a pretrained folder holds the flow policy alone, so it is not exported"
+            f"checkpoint {cfg.checkpoint!r} holds a fine-tuned acting module ({type(actor).__name__}, "
+            "policy.finetune), not the flow policy alone that a pretrained folder holds; it is not exported"
         )
     folder = save_pretrained(
         actor,

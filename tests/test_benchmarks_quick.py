@@ -383,24 +383,6 @@ def test_a_finished_run_of_another_setting_is_refused_not_read_back(tmp_path):
         train(Run("other", other, run_dir), tmp_path / "data")
 
 
-def test_flow_q_pooled_rates_add_episode_counts_and_take_the_test_seed_from_overrides():
-    from benchmarks import bench_flow_q
-
-    first = {"success_once": 0.42, "episodes": 100}
-    extra = {"success_once": 0.43, "episodes": 200}
-    pooled = bench_flow_q._pooled(first, extra)
-    assert pooled["episodes"] == 300 and pooled["success_once"] == pytest.approx(128 / 300)
-    low, high = pooled["ci95"]
-    assert low < 128 / 300 < high and high - low < 0.12  # 300 episodes: about +-0.056
-    assert bench_flow_q._test_seed([]) == 100_000
-    assert bench_flow_q._test_seed(["eval.val_episodes=20", "eval.seed=7"]) == 7
-    score = {"bc": 0.27, "bc_one_step": 0.1, "bc_continued": 0.19, "bc_continued_one_step": 0.05}
-    gains = bench_flow_q._gains({**score, "flowq_offline": 0.43, "flowq_online": 0.31})
-    assert gains["gain_offline_over_best_continued_bc"] == pytest.approx(0.24)
-    assert gains["gain_offline_over_best_bc"] == pytest.approx(0.16)
-    assert gains["gain_over_best_continued_bc"] == pytest.approx(0.12)
-
-
 def test_sampler_quick_mode_measures_sampling_against_the_training_step(tmp_path):
     from benchmarks import bench_sampler
 

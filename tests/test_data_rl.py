@@ -52,7 +52,8 @@ def reference(episode: int, t: int, n: int, h: int, to: int, terminated: bool, f
             s = n - 1  # the stand-in: the last observation repeated
         history.append([episode * 1000 + s, -s])
     done = t + h >= n
-    valid = t + h <= n and (final or terminated or t + h < n)
+    # a chunk crossing a terminal end is valid (its return summed to the end, no bootstrap)
+    valid = (t + h <= n and (final or terminated or t + h < n)) or terminated
     return (
         ret,
         torch.tensor(history, dtype=torch.float32),
@@ -93,7 +94,11 @@ def test_chunk_return_next_observation_and_masks_by_hand_at_an_episode_end():
     i = window(0, 4)  # t+h = 8 > L: only the 2 steps inside count; the history is clamped at the final one
     assert batch["next", "reward"][i].item() == pytest.approx(5 + 0.9 * 6)
     assert batch["next", "observation"][i].tolist() == [[6, -6], [6, -6]]
-    assert batch["next", "done"][i] and not batch["chunk_valid"][i]
+    # it crosses a terminal end: valid, with no bootstrap (terminated)
+    assert batch["next", "done"][i] and batch["next", "terminated"][i] and batch["chunk_valid"][i]
+    # episode 1 is truncated: a chunk that crosses its end is left out
+    i = window(1, 7)  # t+h = 11 > L = 9
+    assert batch["next", "truncated"][i] and not batch["chunk_valid"][i]
     # episode 1: L = 9, truncated (a time limit): done but not terminated
     i = window(1, 5)  # t+h == L
     assert batch["next", "reward"][i].item() == pytest.approx(16 + 0.9 * 17 + 0.81 * 18 + 0.729 * 19)
@@ -113,31 +118,6 @@ def test_chunk_return_next_observation_and_masks_by_hand_at_an_episode_end():
     assert torch.equal(
         batch["observation"][:, -1, 0], batch["step"].float() + 1000 * batch["episode"].float()
     )
-
-
-def test_monte_carlo_entries_by_hand():
-    """("mc", ...): the discounted return to the episode's end, the steps it sums, the last reward
-    and whether the episode terminated, for every drawn window."""
-    eps = make_episodes()
-    rb = make_chunk_buffer(
-        eps, obs_horizon=2, pred_horizon=8, batch_size=2000, seed=1, rl_horizon=4, gamma=GAMMA
-    )
-    batch = rb.sample()
-    assert batch["mc", "return"].shape == (2000, 1) and batch["mc", "return"].dtype == torch.float32
-    rows = ((batch["episode"] == 0) & (batch["step"] == 3)).nonzero()
-    i = int(rows[0])  # episode 0: L = 6, r_t = 1 + t: steps 3, 4, 5 remain
-    assert batch["mc", "return"][i].item() == pytest.approx(4 + 0.9 * 5 + 0.81 * 6)
-    assert batch["mc", "steps"][i].item() == 3 and batch["mc", "last_reward"][i].item() == 6
-    assert bool(batch["mc", "terminated"][i])
-    lengths, terms = {0: 6, 1: 9}, {0: True, 1: False}
-    for i in range(batch.shape[0]):
-        e, t = int(batch["episode"][i]), int(batch["step"][i])
-        n = lengths[e]
-        expected = sum(GAMMA**k * (1 + (t + k) + 10 * e) for k in range(n - t))
-        assert batch["mc", "return"][i].item() == pytest.approx(expected, rel=1e-6)
-        assert batch["mc", "steps"][i].item() == n - t
-        assert batch["mc", "last_reward"][i].item() == n + 10 * e
-        assert bool(batch["mc", "terminated"][i]) == terms[e]
 
 
 @pytest.mark.parametrize("to,h,horizon", [(1, 1, 4), (3, 2, 8), (2, 7, 8)])

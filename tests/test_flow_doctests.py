@@ -9,12 +9,21 @@ import pytest
 
 MODULES = [
     "l1flow_rl.actor",
+    "l1flow_rl.best_of_n_actor",
+    "l1flow_rl.networks.critic",
+    "l1flow_rl.noise_actor",
+    "l1flow_rl.one_step_actor",
     "l1flow_rl.ema",
     "l1flow_rl.export",
     "l1flow_rl.flow.time",
+    "l1flow_rl.objectives.chunk_critic",
     "l1flow_rl.objectives.diffusion",
+    "l1flow_rl.objectives.dsrl",
+    "l1flow_rl.objectives.finetune_registry",
     "l1flow_rl.objectives.flow_matching",
+    "l1flow_rl.objectives.fql",
     "l1flow_rl.objectives.l1flow",
+    "l1flow_rl.objectives.qc",
     "l1flow_rl.objectives.regression",
     "l1flow_rl.pretrained",
 ]

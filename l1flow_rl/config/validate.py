@@ -43,6 +43,7 @@ from l1flow_rl.evaluation.protocols import protocol_names
 from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_problems, samplers_for
 from l1flow_rl.networks.encoders import encoder_names, encoder_problems
 from l1flow_rl.normalizer import NormalizerMode
+from l1flow_rl.objectives.finetune_registry import finetune_algorithm_names, finetune_algorithm_problems
 from l1flow_rl.objectives.registry import get_loss, loss_names, loss_problems
 
 __all__ = [
@@ -89,6 +90,7 @@ BUILTIN_CHOICES: dict[str, Callable[[], Iterable[str]]] = {
     "encoder.name": encoder_names,
     "eval.protocol": protocol_names,
     "eval.val_sampler": sampler_names,
+    "finetune.algorithm": finetune_algorithm_names,
     **finetune.CHOICES,
 }
 
@@ -183,7 +185,12 @@ def _check_val_sampler(cfg: DictConfig, command: str) -> list[str]:
 
 
 #: The rules that read more than one field, each defined beside what it validates.
-BUILTIN_CHECKS: tuple[Check, ...] = (_check_val_sampler, eval_config_problems, *finetune.CHECKS)
+BUILTIN_CHECKS: tuple[Check, ...] = (
+    _check_val_sampler,
+    eval_config_problems,
+    *finetune.CHECKS,
+    finetune_algorithm_problems,
+)
 
 
 def _check_task(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:

@@ -11,18 +11,15 @@ actions (``action_chunk[:, To-1 : To-1+h]``) and discount g:
 ``("next", "done")``         [B, 1] t+h >= L (the chunk reaches the episode's end)
 ``("next", "terminated")``   [B, 1] done and the episode ended in a terminal state
 ``("next", "truncated")``    [B, 1] done and not terminated
-``"chunk_valid"``            [B, 1] t+h <= L: all h executed actions lie inside the episode. Data
-                             without a recorded final observation also mark invalid the window with
-                             t+h == L of a truncated episode, whose bootstrap would need it
-``("mc", "return")``         [B, 1] sum_{i=0}^{L-t-1} g^i r_{t+i}, the discounted return to the episode's
-                             end (Monte-Carlo critic targets)
-``("mc", "steps")``          [B, 1] L - t, the steps it sums
-``("mc", "last_reward")``    [B, 1] r_{L-1}, for valuing what a truncated episode left unplayed
-``("mc", "terminated")``     [B, 1] the episode ended in a terminal state (its return is complete)
+``"chunk_valid"``            [B, 1] t+h <= L (all h executed actions lie inside the episode), or the
+                             episode terminated: a chunk that crosses a terminal end keeps its
+                             return summed to that end and needs no bootstrap. Data without a
+                             recorded final observation also mark invalid the window with t+h == L
+                             of a truncated episode, whose bootstrap would need it
 ============================ ==========================================================================
 
 The TD target is then ``R + g^h * (1 - terminated) * Q(next observation, next chunk)``, masked by
-``chunk_valid``.
+``chunk_valid`` (:class:`~l1flow_rl.ChunkCriticLoss`).
 """
 
 from __future__ import annotations
@@ -69,15 +66,12 @@ def read_rl_targets(
     length = (end - start).unsqueeze(1)
     rel = (t - start).unsqueeze(1)  # the current step inside its episode
 
-    # the discounted rewards from t to the episode's end, over the longest remainder in the batch (one
-    # gather): their sum is the return to go, their first h the chunk return (steps past h, or past
-    # the episode's end, are out of the chunk)
-    span = torch.arange(int((length - rel).max()))
+    # the discounted rewards of the chunk, h steps at most and none past the episode's end
+    span = torch.arange(h)
     rows = torch.minimum(t.unsqueeze(1) + span, end.unsqueeze(1) - 1)
-    rewards = gather(data.get(layout.reward_key), rows).reshape(batch, span.numel()).to(torch.float64)
+    rewards = gather(data.get(layout.reward_key), rows).reshape(batch, h).to(torch.float64)
     discounted = rewards * gamma ** span.to(torch.float64) * (rel + span < length)
-    chunk_return = discounted[:, :h].sum(1, keepdim=True).to(torch.float32)
-    return_to_go = discounted.sum(1, keepdim=True)
+    chunk_return = discounted.sum(1, keepdim=True).to(torch.float32)
 
     # the observation history at t+h; step L (and past it) is the final observation
     hist = (rel + h - to + 1 + torch.arange(to)).clamp(min=0)
@@ -92,9 +86,8 @@ def read_rl_targets(
         observations = _where_rows(at_end, final, observations)
 
     episode_terminated = gather(data.get(("next", "terminated")), end - 1).reshape(batch, 1).bool()
-    last_reward = rewards.gather(1, length - rel - 1)  # r_{L-1}, the remainder's last step
     done = rel + h >= length
-    valid = rel + h <= length
+    valid = (rel + h <= length) | episode_terminated
     if not final_observation_known:
         valid &= ~((rel + h == length) & ~episode_terminated)
     out = TensorDict(
@@ -106,12 +99,6 @@ def read_rl_targets(
                 "truncated": done & ~episode_terminated,
             },
             "chunk_valid": valid,
-            "mc": {
-                "return": return_to_go.to(torch.float32),
-                "steps": length - rel,
-                "last_reward": last_reward.to(torch.float32),
-                "terminated": episode_terminated,
-            },
         },
         batch_size=[batch],
     )

@@ -1,20 +1,27 @@
-"""TorchRL losses for chunk policies: L1 Flow and its baselines, and flow Q-learning; one per file.
-The behaviour-cloning losses are registered by name for ``policy.loss`` (:mod:`.registry`)."""
+"""TorchRL losses for chunk policies, one per file: L1 Flow and its baselines (behaviour cloning), and the
+fine-tuning losses QC, FQL and DSRL on one shared chunk-critic TD loss. The behaviour-cloning losses are
+registered by name for ``policy.loss`` (:mod:`.registry`)."""
 
+from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
 from l1flow_rl.objectives.diffusion import DiffusionLoss
+from l1flow_rl.objectives.dsrl import DSRLLoss
 from l1flow_rl.objectives.flow_matching import FlowMatchingLoss
-from l1flow_rl.objectives.flow_q import FlowQLoss
+from l1flow_rl.objectives.fql import FQLLoss
 from l1flow_rl.objectives.l1flow import L1FlowLoss
+from l1flow_rl.objectives.qc import QCLoss
 from l1flow_rl.objectives.registry import get_loss, loss_names, register_loss
 from l1flow_rl.objectives.regression import RegressionLoss
 
 __all__ = [
+    "ChunkCriticLoss",
     "ChunkLossBase",
+    "DSRLLoss",
     "DiffusionLoss",
+    "FQLLoss",
     "FlowMatchingLoss",
-    "FlowQLoss",
     "L1FlowLoss",
+    "QCLoss",
     "RegressionLoss",
     "get_loss",
     "loss_names",

@@ -22,8 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.errors import CheckpointMismatchError, CheckpointReadError
-from l1flow_rl.networks.best_of_n import BestOfNActor
-from l1flow_rl.networks.critic import build_critics, stack_critics
+from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.state_dict import load_state_into
 from l1flow_rl.workspace.build import build_actor
 
@@ -266,29 +265,15 @@ def load_actor(
     path: str | Path, *, use_ema: bool = True, map_location: str | torch.device = "cpu"
 ) -> tuple[L1FlowActor, DictConfig]:
     """Rebuild the actor a checkpoint was trained with (EMA weights by default) and its config: an
-    :class:`~l1flow_rl.L1FlowActor`, or for a flow-Q ``best_of_n`` run the
-    :class:`~l1flow_rl.networks.best_of_n.BestOfNActor` around one (its config's ``policy.best_of_n``)."""
+    :class:`~l1flow_rl.L1FlowActor`, or for a fine-tuning run the acting module of its algorithm
+    (its config's ``policy.finetune`` block, :mod:`l1flow_rl.objectives.finetune_registry`) around one."""
     state = load_checkpoint(path, map_location)
     cfg = OmegaConf.create(state["config"])
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
     actor = build_actor(cfg.policy, shapes, int(state["action_dim"]), cfg.get("encoder"))
-    best_of_n = cfg.policy.get("best_of_n")
-    if best_of_n:  # a flow-Q best_of_n run: the policy selects with its critics
-        h = int(best_of_n.rl_horizon)
-        critics = build_critics(
-            actor,
-            num=int(best_of_n.num_qvalue_nets),
-            action_horizon=h,
-            hidden_dims=tuple(best_of_n.critic_hidden_dims),
-        )
-        actor = BestOfNActor(
-            actor,
-            critics[0],
-            stack_critics(critics),
-            num_samples=int(best_of_n.num_samples),
-            rl_horizon=h,
-            critic_input=str(best_of_n.get("critic_input", "action")),  # runs before it: the chunk
-        )
+    finetune = cfg.policy.get("finetune")
+    if finetune:  # a fine-tuned policy: the algorithm's acting module around the flow
+        actor = FINETUNE_ALGORITHMS[finetune.algorithm].build(actor, finetune).actor
     weights = state["ema"] if use_ema and state.get("ema") is not None else state["model"]
     load_state_into(actor, weights, str(path))
     return actor.to(map_location).eval(), cfg

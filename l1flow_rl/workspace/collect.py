@@ -94,7 +94,7 @@ class OnlineCollector:
             ignore_terminations=False,
             render=False,
         )
-        policy = MultiStepActorWrapper(actor, n_steps=actor.policy.action_steps, init_key="is_init")
+        policy = MultiStepActorWrapper(actor, n_steps=int(cfg.policy.action_steps), init_key="is_init")
         # building the collector may run the policy once; keep that off the training RNG stream
         with torch.random.fork_rng(devices=[]):
             self.collector = Collector(

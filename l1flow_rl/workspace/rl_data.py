@@ -1,12 +1,11 @@
 """The fine-tuning run's replay data: demonstrations and online episodes as chunk windows with RL targets.
 
-``online.mixing``:
-
-* ``"seed"`` (FQL's default): one writable buffer that the demonstrations seed and online episodes
-  extend; batches are drawn uniformly over everything stored.
-* ``"balanced"``: the demonstrations and the online episodes in two buffers; every batch takes
-  exactly ``offline_fraction`` of its windows from the demonstrations (TorchRL's
-  ``OfflineToOnlineReplayBuffer``).
+* By default (RLPD, QC) the demonstrations and the online episodes sit in two buffers, and every
+  batch takes exactly ``online.offline_fraction`` of its windows from the demonstrations (TorchRL's
+  ``OfflineToOnlineReplayBuffer``); with ``offline_fraction=0`` the demonstrations are only the
+  offline phase's data (DSRL).
+* ``online.seed_with_offline`` (FQL's alternative): one writable buffer that the demonstrations
+  seed and online episodes extend; batches are drawn uniformly over everything stored.
 """
 
 from __future__ import annotations
@@ -26,8 +25,6 @@ from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
 from l1flow_rl.workspace.dataset import chunk_padding
 
 __all__ = ["ChunkOfflineToOnlineBuffer", "RLBuffers"]
-
-MIXING = ("seed", "balanced")
 
 
 class ChunkOfflineToOnlineBuffer(OfflineToOnlineReplayBuffer):
@@ -71,16 +68,25 @@ class RLBuffers:
         episodes: the demonstrations (with rewards and next observations).
         rl_horizon: h, the critic's executed chunk length.
         seed: seeds the buffers' generators.
+        online_keys: per-step entries the online buffer keeps beside the core ones (the
+            algorithm's, e.g. DSRL's noise).
     """
 
-    def __init__(self, cfg: DictConfig, episodes: TensorDictBase, rl_horizon: int, seed: int) -> None:
+    def __init__(
+        self,
+        cfg: DictConfig,
+        episodes: TensorDictBase,
+        rl_horizon: int,
+        seed: int,
+        online_keys: tuple[str, ...] = (),
+    ) -> None:
         ocfg = cfg.online
-        if ocfg.mixing not in MIXING:
-            raise ValueError(f"online.mixing={ocfg.mixing!r}; expected one of {MIXING}")
-        if not 0.0 < ocfg.offline_fraction < 1.0:
-            raise ValueError(f"online.offline_fraction must lie in (0, 1), got {ocfg.offline_fraction}")
-        self.mixing = ocfg.mixing
-        reward = str(cfg.finetune.get("reward", "recorded"))
+        if not 0.0 <= ocfg.offline_fraction < 1.0:
+            raise ValueError(f"online.offline_fraction must lie in [0, 1), got {ocfg.offline_fraction}")
+        self.mixing = (
+            "seed" if ocfg.seed_with_offline else ("balanced" if ocfg.offline_fraction > 0 else "online")
+        )
+        reward = str(cfg.finetune.reward)
         if reward not in REWARD_KEYS:
             raise ValueError(f"finetune.reward={reward!r}; expected one of {tuple(REWARD_KEYS)}")
         if reward == "sparse":
@@ -98,24 +104,38 @@ class RLBuffers:
             reward_key=REWARD_KEYS[reward],
             keys=CORE_KEYS,  # demonstrations and online episodes share one set of entries
         )
+        online = (*CORE_KEYS, *online_keys)
         if self.mixing == "seed":
+            if online_keys:
+                raise ValueError(
+                    f"online.seed_with_offline: the demonstrations lack the entries {list(online_keys)} "
+                    "this algorithm stores per step; keep them in separate buffers"
+                )
             self.offline = make_chunk_buffer(
                 episodes, seed=seed, capacity=n_demo + (online_capacity if ocfg.steps > 0 else 0), **common
             )
             self.online = self.offline
             self.mixed: Any = self.offline
-        else:
+        elif self.mixing == "balanced":
             # the parent asks each buffer for its share of a batch; no default size avoids TorchRL's
             # "conflicting batch sizes" warning on every draw
             common["batch_size"] = None
             self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
-            self.online = make_chunk_buffer(None, seed=seed + 1, capacity=max(online_capacity, 1), **common)
+            self.online = make_chunk_buffer(
+                None, seed=seed + 1, capacity=max(online_capacity, 1), **{**common, "keys": online}
+            )
             self.mixed = ChunkOfflineToOnlineBuffer(
                 self.offline,
                 self.online,
                 offline_fraction=ocfg.offline_fraction,
                 batch_size=cfg.finetune.batch_size,
             )
+        else:  # online data only
+            self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
+            self.online = make_chunk_buffer(
+                None, seed=seed + 1, capacity=max(online_capacity, 1), **{**common, "keys": online}
+            )
+            self.mixed = self.online
         self.batch_size = int(cfg.finetune.batch_size)
         self.online_steps_stored = 0
 
@@ -149,6 +169,7 @@ class RLBuffers:
 
     def dump_online(self, directory: Path) -> None:
         """The online buffer (storage, writer, generator) under ``directory``, written atomically."""
+        directory.parent.mkdir(parents=True, exist_ok=True)  # the run's first checkpoint may be this one
         tmp = directory.parent / f".{directory.name}.partial"
         shutil.rmtree(tmp, ignore_errors=True)
         self.online.dumps(tmp)

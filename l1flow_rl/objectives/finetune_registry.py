@@ -1,0 +1,175 @@
+"""The fine-tuning algorithms by name: each is its loss class, the builder of that loss (and with it the
+acting module, ``loss.actor``) from a BC actor and the ``finetune`` config, and its settings block.
+
+A new algorithm is one loss file plus one :func:`register_finetune_algorithm` call; the config
+validator (``finetune.algorithm``) and ``l1flow-rl finetune`` read this table.
+
+Example:
+    >>> import torch
+    >>> from omegaconf import OmegaConf
+    >>> from l1flow_rl import L1FlowActor
+    >>> from l1flow_rl.config.finetune import FinetuneConfig
+    >>> cfg = OmegaConf.structured(FinetuneConfig(algorithm="fql", critic_hidden_dims=[32]))
+    >>> flow = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
+    >>> loss = FINETUNE_ALGORITHMS["fql"].build(flow, cfg)
+    >>> type(loss).__name__, type(loss.actor).__name__
+    ('FQLLoss', 'OneStepActor')
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from omegaconf import DictConfig
+from torch import nn
+
+from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.config.finetune import DSRLSettings, FQLSettings, QCSettings
+from l1flow_rl.networks.critic import ChunkCritic
+from l1flow_rl.noise_actor import NoiseActor
+from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
+from l1flow_rl.objectives.dsrl import DSRLLoss
+from l1flow_rl.objectives.fql import FQLLoss
+from l1flow_rl.objectives.qc import QCLoss
+from l1flow_rl.one_step_actor import OneStepActor
+
+__all__ = [
+    "FINETUNE_ALGORITHMS",
+    "FinetuneAlgorithm",
+    "finetune_algorithm_names",
+    "finetune_algorithm_problems",
+    "register_finetune_algorithm",
+]
+
+
+@dataclass(frozen=True)
+class FinetuneAlgorithm:
+    """``build(flow, finetune_cfg)`` -> the loss (its ``actor`` acts); ``start_actor(loss)``: the BC
+    policy in the form that writes what the online buffer stores (the warm-up steps' actor);
+    ``settings``: the dataclass of the algorithm's own block ``finetune.<name>``; ``online_keys``:
+    per-step entries the online buffer keeps beside the core ones; ``uses_offline_data``: False where
+    the batches need entries demonstrations lack (DSRL's noise)."""
+
+    name: str
+    loss_cls: type[ChunkCriticLoss]
+    settings: type
+    build: Callable[[L1FlowActor, DictConfig], ChunkCriticLoss]
+    start_actor: Callable[[ChunkCriticLoss], nn.Module]
+    online_keys: tuple[str, ...] = ()
+    uses_offline_data: bool = True
+
+    def check(self, cfg: DictConfig) -> list[str]:
+        """Problems of a composed run config for this algorithm, one line each."""
+        problems = []
+        if not self.uses_offline_data:
+            if cfg.offline.steps > 0:
+                problems.append(
+                    f"offline.steps={cfg.offline.steps}: finetune.algorithm={self.name} trains only on "
+                    "data its own actor collected (the demonstrations carry no steering noise); use "
+                    "offline.steps=0"
+                )
+            if cfg.online.offline_fraction > 0 or cfg.online.seed_with_offline:
+                problems.append(
+                    f"online.offline_fraction={cfg.online.offline_fraction}, online.seed_with_offline="
+                    f"{cfg.online.seed_with_offline}: finetune.algorithm={self.name} cannot use "
+                    "demonstrations; use online.offline_fraction=0 online.seed_with_offline=false"
+                )
+        return problems
+
+
+FINETUNE_ALGORITHMS: dict[str, FinetuneAlgorithm] = {}
+
+
+def register_finetune_algorithm(algorithm: FinetuneAlgorithm) -> None:
+    FINETUNE_ALGORITHMS[algorithm.name] = algorithm
+
+
+def finetune_algorithm_names() -> list[str]:
+    """The allowed values of ``finetune.algorithm`` (read by the config validator)."""
+    return sorted(FINETUNE_ALGORITHMS)
+
+
+def finetune_algorithm_problems(cfg: DictConfig, command: str) -> list[str]:
+    """The chosen algorithm's own rules (it says what data it can use), for ``l1flow-rl finetune``."""
+    ft = cfg.get("finetune")
+    if command != "finetune" or ft is None:
+        return []
+    algorithm = FINETUNE_ALGORITHMS.get(ft.algorithm)
+    return [] if algorithm is None else algorithm.check(cfg)
+
+
+def _critic(flow: L1FlowActor, cfg: DictConfig, input_shape, normalize_input: bool = True) -> ChunkCritic:
+    return ChunkCritic.from_policy(
+        flow,
+        input_shape=input_shape,
+        num_critics=int(cfg.num_critics),
+        hidden_dims=tuple(cfg.critic_hidden_dims),
+        normalize_input=normalize_input,
+    )
+
+
+def _horizon(flow: L1FlowActor, cfg: DictConfig) -> int:
+    return int(cfg.rl_horizon) or flow.policy.action_steps
+
+
+def _common(cfg: DictConfig) -> dict:
+    return {"gamma": float(cfg.gamma), "q_agg": str(cfg.q_agg), "rl_horizon": int(cfg.rl_horizon) or None}
+
+
+def _build_qc(flow: L1FlowActor, cfg: DictConfig) -> QCLoss:
+    critic = _critic(flow, cfg, (_horizon(flow, cfg), flow.policy.action_dim))
+    return QCLoss(
+        flow,
+        critic,
+        num_samples=int(cfg.qc.num_samples),
+        freeze_flow=bool(cfg.qc.freeze_flow),
+        **_common(cfg),
+    )
+
+
+def _build_fql(flow: L1FlowActor, cfg: DictConfig) -> FQLLoss:
+    mu = OneStepActor.from_flow(flow, hidden_dims=tuple(cfg.fql.actor_hidden_dims))
+    critic = _critic(flow, cfg, (_horizon(flow, cfg), flow.policy.action_dim))
+    return FQLLoss(
+        mu,
+        flow,
+        critic,
+        alpha=float(cfg.fql.alpha),
+        normalize_q_loss=bool(cfg.fql.normalize_q_loss),
+        **_common(cfg),
+    )
+
+
+def _build_dsrl(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
+    s = cfg.dsrl
+    steer = NoiseActor.from_flow(flow, bound=float(s.noise_bound), hidden_dims=tuple(s.actor_hidden_dims))
+    noise_shape = (flow.policy.pred_horizon, flow.policy.action_dim)
+    critic = _critic(flow, cfg, noise_shape, normalize_input=False)
+    return DSRLLoss(
+        steer,
+        critic,
+        target_entropy=float(s.target_entropy),
+        init_alpha=float(s.init_alpha),
+        **_common(cfg),
+    )
+
+
+def _flow(loss) -> L1FlowActor:
+    return loss.flow
+
+
+register_finetune_algorithm(FinetuneAlgorithm("qc", QCLoss, QCSettings, _build_qc, _flow))
+register_finetune_algorithm(FinetuneAlgorithm("fql", FQLLoss, FQLSettings, _build_fql, _flow))
+register_finetune_algorithm(
+    FinetuneAlgorithm(
+        "dsrl",
+        DSRLLoss,
+        DSRLSettings,
+        _build_dsrl,
+        lambda loss: loss.actor.prior(),
+        # the chunk's noise at each step, and the wrapper's step count (1 where a chunk starts)
+        online_keys=("noise", "counter"),
+        uses_offline_data=False,
+    )
+)

@@ -1,0 +1,145 @@
+"""Flow Q-learning (FQL, seohongpark/fql) on chunks, with the L1 Flow policy as the BC flow.
+
+* The BC flow keeps training with its L1 Flow loss on the replay batches.
+* The one-step policy mu(s, z) (:class:`~l1flow_rl.OneStepActor`, trained from scratch) minimises
+  ``alpha * ||mu(s, z) - flow(s, z)||^2 - lambda * Q(s, mu(s, z))``: the teacher's chunk is its 2-NFE
+  sample from the same noise z, under no_grad and clipped to the action range; ``lambda = 1 / mean|Q|``
+  (detached) with ``normalize_q_loss``, Q the critics' mean.
+* The TD target's next chunk is mu's at s_{t+h}.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torch import Tensor
+
+from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.networks.critic import ChunkCritic
+from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
+from l1flow_rl.objectives.l1flow import L1FlowLoss
+from l1flow_rl.one_step_actor import OneStepActor, OneStepPolicy
+
+__all__ = ["FQLLoss"]
+
+
+class FQLLoss(ChunkCriticLoss):
+    """FQL: chunk-critic TD, the one-step actor's distill-and-climb loss, and the flow's BC loss.
+
+    Args:
+        actor_network: mu, a :class:`~l1flow_rl.OneStepActor`.
+        flow_network: the L1 Flow actor (the BC flow and distillation teacher).
+        critic: a :class:`~l1flow_rl.networks.critic.ChunkCritic` on executed chunks [h, A].
+
+    Keyword Args:
+        alpha: weight of the distillation term (with ``normalize_q_loss``, FQL's README advises
+            0.03-10; TorchRL 0.15's FQLLoss defaults to 10).
+        normalize_q_loss: scale the Q term by 1 / mean|Q| (detached).
+        gamma, q_agg, rl_horizon: as :class:`~l1flow_rl.ChunkCriticLoss`.
+
+    Returns ``"loss_qvalue"``, ``"loss_actor"``, ``"loss_bc"`` and detached ``"q_actor_mean"``,
+    ``"distill_loss"``, ``"lambda"`` and the critic diagnostics.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.objectives import SoftUpdate
+        >>> from l1flow_rl import FQLLoss, L1FlowActor, OneStepActor
+        >>> from l1flow_rl.networks.critic import ChunkCritic
+        >>> flow = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
+        >>> mu = OneStepActor.from_flow(flow, hidden_dims=(64,))
+        >>> critic = ChunkCritic.from_policy(flow, input_shape=(8, 2), hidden_dims=(32,))
+        >>> loss_fn = FQLLoss(mu, flow, critic, alpha=10.0)
+        >>> td = TensorDict({"observation": torch.randn(4, 2, 5), "action_chunk": torch.rand(4, 16, 2),
+        ...                  "next": {"observation": torch.randn(4, 2, 5), "reward": torch.rand(4, 1),
+        ...                           "terminated": torch.zeros(4, 1, dtype=torch.bool)}}, [4])
+        >>> out = loss_fn(td)
+        >>> sorted(k for k in out.keys() if k.startswith("loss_"))
+        ['loss_actor', 'loss_bc', 'loss_qvalue']
+        >>> sum(v for k, v in out.items() if k.startswith("loss_")).backward()
+        >>> SoftUpdate(loss_fn, tau=0.005).step()
+    """
+
+    actor_network: OneStepActor
+    actor_network_params: TensorDictBase
+    target_actor_network_params: TensorDictBase
+
+    def __init__(
+        self,
+        actor_network: OneStepActor,
+        flow_network: L1FlowActor,
+        critic: ChunkCritic,
+        *,
+        alpha: float = 10.0,
+        normalize_q_loss: bool = True,
+        gamma: float = 0.99,
+        q_agg: str = "mean",
+        rl_horizon: int | None = None,
+    ) -> None:
+        if alpha < 0:
+            raise ValueError(f"alpha must be >= 0, got {alpha}")
+        super().__init__(critic, flow_network, gamma=gamma, q_agg=q_agg, rl_horizon=rl_horizon)
+        if not isinstance(actor_network, OneStepActor):
+            raise TypeError(f"actor_network must be a OneStepActor, got {type(actor_network).__name__}")
+        mu, flow = actor_network.policy, flow_network.policy
+        for attr in ("action_dim", "obs_horizon", "pred_horizon", "action_steps"):
+            if getattr(mu, attr) != getattr(flow, attr):
+                raise ValueError(
+                    f"the one-step actor's {attr}={getattr(mu, attr)} differs from the flow's "
+                    f"{getattr(flow, attr)}"
+                )
+        self.convert_to_functional(actor_network, "actor_network")
+        self.bc_loss = L1FlowLoss(flow_network)
+        self.__dict__["flow"] = flow_network  # the BC flow (the acting start; its parameters are bc_loss's)
+        self.alpha, self.normalize_q_loss = float(alpha), bool(normalize_q_loss)
+
+    @property
+    def mu(self) -> OneStepPolicy:
+        return self.actor_network.policy
+
+    @property
+    def actor(self) -> OneStepActor:
+        """The acting module: mu."""
+        return self.actor_network
+
+    def _noise(self, n: int, like: Tensor) -> Tensor:
+        return torch.randn(
+            n, self.reader.pred_horizon, self.reader.action_dim, dtype=like.dtype, device=like.device
+        )
+
+    def _env_executed(self, x: Tensor) -> Tensor:
+        return self.reader.action_normalizer.unnormalize(self.executed(x))
+
+    def next_value(self, td: TensorDictBase, next_obs: TensorDictBase) -> Tensor:
+        scale = self.reader.action_normalizer.scale
+        with self.actor_network_params.to_module(self.actor_network):
+            x = self.mu.chunk(next_obs, self._noise(next_obs.shape[0], scale))
+        return self.aggregate(self.q(next_obs, self._env_executed(x), target=True))
+
+    def actor_loss(self, td: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
+        obs = self.read_observation(td, self.tensor_keys.observation)
+        flow = self.reader
+        z = self._noise(obs.shape[0], flow.action_normalizer.scale)
+        with self.actor_network_params.to_module(self.actor_network):
+            x = self.mu.chunk(obs, z)
+        with torch.no_grad():  # the teacher gets no gradient from distillation
+            cond = flow.encode(obs)
+            teacher = flow.sampler(lambda xt, t: flow.denoise(xt, t, cond), z).clamp(-1.0, 1.0)
+        distill = (x - teacher).square().mean()
+        q = self.q(obs, self._env_executed(x), detach=True).mean(-1)
+        lam = 1.0 / q.abs().mean().detach().clamp_min(1e-6) if self.normalize_q_loss else q.new_ones(())
+        loss = self.alpha * distill - lam * q.mean()
+        return loss, {
+            "q_actor_mean": q.mean().detach(),
+            "distill_loss": distill.detach(),
+            "lambda": lam.detach(),
+        }
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        loss_q, out = self.qvalue_loss(tensordict)
+        loss_actor, actor_out = self.actor_loss(tensordict)
+        bc = self.bc_loss(tensordict)[self.bc_loss.loss_name]
+        return TensorDict(
+            {"loss_qvalue": loss_q, "loss_actor": loss_actor, "loss_bc": bc, **out, **actor_out},
+            batch_size=[],
+        )

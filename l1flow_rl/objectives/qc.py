@@ -1,0 +1,97 @@
+"""Q-chunking (QC, ColinQiyangLi/qc) on the L1 Flow policy: best-of-N chunks under a chunk critic.
+
+The next chunk a' of the TD target is the best of N proposals of the flow's 2-NFE sampler at
+s_{t+h}, picked by the ONLINE critics (their mean) and valued by the TARGET critics (``q_agg``): QC's
+expected-max backup. The flow keeps its L1 Flow BC loss on the replay batches (QC's only way to
+move the proposals), unless ``freeze_flow``.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torch import Tensor
+
+from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.best_of_n_actor import BestOfNActor
+from l1flow_rl.networks.critic import ChunkCritic
+from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
+from l1flow_rl.objectives.l1flow import L1FlowLoss
+
+__all__ = ["QCLoss"]
+
+
+class QCLoss(ChunkCriticLoss):
+    """Chunk-critic TD with QC's best-of-N backup, plus the flow's BC loss.
+
+    Args:
+        actor_network: the L1 Flow actor that proposes chunks (trained by the BC term).
+        critic: a :class:`~l1flow_rl.networks.critic.ChunkCritic` on executed chunks [h, A].
+
+    Keyword Args:
+        num_samples: N proposals per next state (QC: 32).
+        freeze_flow: keep the flow's weights as they are (no BC term, no flow parameters trained).
+        gamma, q_agg, rl_horizon: as :class:`~l1flow_rl.ChunkCriticLoss`.
+
+    :attr:`actor` is the acting :class:`~l1flow_rl.BestOfNActor`: it shares the flow and the online
+    critics with this loss, so acting follows training.
+
+    Returns ``"loss_qvalue"``, ``"loss_bc"`` (absent when frozen) and detached diagnostics.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.objectives import SoftUpdate
+        >>> from l1flow_rl import L1FlowActor, QCLoss
+        >>> from l1flow_rl.networks.critic import ChunkCritic
+        >>> flow = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
+        >>> critic = ChunkCritic.from_policy(flow, input_shape=(8, 2), hidden_dims=(32,))
+        >>> loss_fn = QCLoss(flow, critic, num_samples=4)
+        >>> td = TensorDict({"observation": torch.randn(4, 2, 5), "action_chunk": torch.rand(4, 16, 2),
+        ...                  "next": {"observation": torch.randn(4, 2, 5), "reward": torch.rand(4, 1),
+        ...                           "terminated": torch.zeros(4, 1, dtype=torch.bool)}}, [4])
+        >>> out = loss_fn(td)
+        >>> sum(v for k, v in out.items() if k.startswith("loss_")).backward()
+        >>> SoftUpdate(loss_fn, tau=0.005).step()
+        >>> loss_fn.actor(TensorDict({"observation": torch.randn(3, 2, 5)}, [3]))["action_chunk"].shape
+        torch.Size([3, 8, 2])
+    """
+
+    def __init__(
+        self,
+        actor_network: L1FlowActor,
+        critic: ChunkCritic,
+        *,
+        num_samples: int = 32,
+        freeze_flow: bool = False,
+        gamma: float = 0.99,
+        q_agg: str = "mean",
+        rl_horizon: int | None = None,
+    ) -> None:
+        super().__init__(critic, actor_network, gamma=gamma, q_agg=q_agg, rl_horizon=rl_horizon)
+        self.__dict__["flow"] = actor_network  # the BC flow (the acting start; shared, not copied)
+        self.freeze_flow = bool(freeze_flow)
+        if self.freeze_flow:
+            actor_network.requires_grad_(False)
+            self.bc_loss = None
+        else:
+            # a child loss: the flow's parameters are this loss's, trained by the BC term
+            self.bc_loss = L1FlowLoss(actor_network)
+        # the acting module shares the flow and the online critics' tensors (not registered twice)
+        self.__dict__["actor"] = BestOfNActor(
+            actor_network, self.critic, num_samples=num_samples, rl_horizon=self.rl_horizon
+        )
+
+    def next_value(self, td: TensorDictBase, next_obs: TensorDictBase) -> Tensor:
+        chunks = self.actor.propose(next_obs)  # [N, n, H, A]
+        picked = self.actor.pick(next_obs, chunks)  # online critics
+        chosen = self.actor.executed(chunks[torch.arange(chunks.shape[0]), picked])
+        return self.aggregate(self.q(next_obs, chosen, target=True))  # target critics
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        loss_q, out = self.qvalue_loss(tensordict)
+        out = {"loss_qvalue": loss_q, **out}
+        if self.bc_loss is not None:
+            bc = self.bc_loss(tensordict)
+            out["loss_bc"] = bc[self.bc_loss.loss_name]
+        return TensorDict(out, batch_size=[])

@@ -1,0 +1,47 @@
+"""The fine-tuning presets compose and validate through the CLI's compose function, and the registry
+decides what each algorithm accepts."""
+
+from __future__ import annotations
+
+import pytest
+from omegaconf import OmegaConf
+
+from l1flow_rl.cli import compose_config
+from l1flow_rl.config.validate import ConfigValidationError
+from l1flow_rl.objectives import DSRLLoss, FQLLoss, QCLoss
+from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
+
+
+@pytest.mark.parametrize(
+    "preset,loss_cls,q_agg,offline_fraction",
+    [("qc", QCLoss, "mean", 0.5), ("fql", FQLLoss, "mean", 0.5), ("dsrl", DSRLLoss, "min", 0.0)],
+)
+def test_presets_compose_validate_and_build_their_loss(preset, loss_cls, q_agg, offline_fraction):
+    from l1flow_rl import L1FlowActor
+
+    cfg = compose_config([f"finetune={preset}", "checkpoint=bc.pt"], command="finetune")
+    assert cfg.finetune.algorithm == preset and cfg.finetune.q_agg == q_agg
+    assert cfg.online.offline_fraction == offline_fraction and cfg.online.warmup_steps == 5000
+    algorithm = FINETUNE_ALGORITHMS[preset]
+    assert algorithm.loss_cls is loss_cls
+    small = OmegaConf.merge(cfg.finetune, {"critic_hidden_dims": [16], "qc": {"num_samples": 2}})
+    flow = L1FlowActor.for_state(obs_dim=3, action_dim=2, down_dims=(8, 16))
+    loss = algorithm.build(flow, small)
+    assert isinstance(loss, loss_cls) and loss.critic.num_critics == cfg.finetune.num_critics
+
+
+def test_bad_fine_tuning_settings_fail_at_config_time_naming_the_field():
+    with pytest.raises(
+        ConfigValidationError, match=r"finetune\.algorithm='sac': expected one of \['dsrl', 'fql', 'qc'\]"
+    ):
+        compose_config(["finetune=qc", "finetune.algorithm=sac"], command="finetune")
+    with pytest.raises(ConfigValidationError, match=r"offline\.steps=100: finetune\.algorithm=dsrl"):
+        compose_config(["finetune=dsrl", "offline.steps=100"], command="finetune")
+    with pytest.raises(
+        ConfigValidationError, match=r"online\.offline_fraction=0\.5.*finetune\.algorithm=dsrl"
+    ):
+        compose_config(["finetune=dsrl", "online.offline_fraction=0.5"], command="finetune")
+    with pytest.raises(ConfigValidationError, match=r"finetune\.q_agg='max'"):
+        compose_config(["finetune=fql", "finetune.q_agg=max"], command="finetune")
+    with pytest.raises(Exception, match="backup"):  # a retired knob is an unknown key
+        compose_config(["finetune=qc", "finetune.backup=max"], command="finetune")

@@ -1,0 +1,198 @@
+"""The fine-tuning losses: TD targets against hand computations at terminated and truncated ends, QC's
+pick-online / value-target backup, the steering actor's bounds with the flow left untouched, FQL's
+gradient routing."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from test_data_rl import GAMMA, make_episodes
+
+from l1flow_rl import ChunkCriticLoss, DSRLLoss, FQLLoss, L1FlowActor, NoiseActor, OneStepActor, QCLoss
+from l1flow_rl.data import make_chunk_buffer
+from l1flow_rl.networks.critic import ChunkCritic
+
+H_EXEC = 4
+
+
+def linear_critic(flow, input_shape, biases, action_weight=0.0, normalize_input=True):
+    """A critic with linear heads (no hidden layer): Q_e = action_weight * sum(input) + biases[e]."""
+    critic = ChunkCritic.from_policy(
+        flow,
+        input_shape=input_shape,
+        num_critics=len(biases),
+        hidden_dims=(),
+        normalize_input=normalize_input,
+    )
+    layer = critic.heads.layers[0]
+    with torch.no_grad():
+        layer.weight.zero_()
+        obs_part = layer.weight.shape[1] - torch.Size(input_shape).numel()
+        layer.weight[:, obs_part:] = action_weight
+        layer.bias.copy_(torch.tensor(biases, dtype=torch.float32).reshape(-1, 1, 1))
+    return critic
+
+
+def window_batch(h=H_EXEC):
+    """Windows of two hand-made episodes (make_episodes: L = 6 terminated, L = 9 truncated)."""
+    rb = make_chunk_buffer(
+        make_episodes(), obs_horizon=2, pred_horizon=8, batch_size=2000, seed=0, rl_horizon=h, gamma=GAMMA
+    )
+    return rb.sample()
+
+
+def hand_target(e: int, t: int, q_next: float, h: int = H_EXEC) -> float:
+    """R_h summed inside the episode, plus gamma^h Q unless the chunk reaches episode 0's terminal end."""
+    length, terminated = {0: (6, True), 1: (9, False)}[e]
+    ret = sum(GAMMA**i * (1 + (t + i) + 10 * e) for i in range(min(h, length - t)))
+    reaches_end = t + h >= length
+    return ret + (0.0 if (terminated and reaches_end) else GAMMA**h * q_next)
+
+
+@pytest.mark.parametrize("q_agg,q_next", [("mean", 2.0), ("min", 1.0)])
+def test_td_target_by_hand_at_terminated_and_truncated_ends(q_agg, q_next):
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    critic = linear_critic(flow, (H_EXEC, 3), biases=[1.0, 3.0])  # target values 1 and 3 everywhere
+    loss = ChunkCriticLoss(
+        critic, flow, next_actor=lambda obs: torch.zeros(obs.shape[0], H_EXEC, 3), gamma=GAMMA, q_agg=q_agg
+    )
+    batch = window_batch()
+    target = loss.td_target(batch)
+    valid = batch["chunk_valid"].reshape(-1)
+    seen = set()
+    for i in range(batch.shape[0]):
+        e, t = int(batch["episode"][i]), int(batch["step"][i])
+        assert target[i].item() == pytest.approx(hand_target(e, t, q_next), rel=1e-5), (e, t)
+        seen.add((e, t, bool(valid[i])))
+    # the cases that decide: the terminated end reached exactly and crossed (valid, no bootstrap),
+    # the truncated end reached exactly (valid, bootstrapped) and crossed (left out)
+    assert {(0, 2, True), (0, 4, True), (1, 5, True), (1, 7, False)} <= seen
+    out = loss(batch)
+    assert out["valid_fraction"].item() == pytest.approx(valid.float().mean().item())
+
+
+def test_critic_loss_ignores_invalid_windows():
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    loss = ChunkCriticLoss(
+        ChunkCritic.from_policy(flow, input_shape=(H_EXEC, 3), hidden_dims=(16,)),
+        flow,
+        next_actor=lambda obs: torch.zeros(obs.shape[0], H_EXEC, 3),
+    )
+    batch = window_batch()[:64]
+    base = loss(batch)["loss_qvalue"]
+    poisoned = batch.clone()
+    invalid = ~poisoned["chunk_valid"].reshape(-1)
+    assert invalid.any()
+    poisoned["next", "reward"][invalid] = 1e6  # rewards of left-out windows change nothing
+    assert loss(poisoned)["loss_qvalue"].item() == pytest.approx(base.item(), rel=1e-6)
+
+
+def test_qc_picks_with_the_online_critics_and_values_with_the_target_critics():
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    # online critics: Q = +sum(chunk); target critics: Q = -sum(chunk) - disagreeing on purpose
+    loss = QCLoss(flow, linear_critic(flow, (H_EXEC, 3), [0.0, 0.0], action_weight=1.0), num_samples=2)
+    with torch.no_grad():
+        loss.target_qvalue_network_params["module", "heads", "layers", "0", "weight"][:, -H_EXEC * 3 :] = -1.0
+
+    def propose(obs, num_samples=None):  # two proposals: every action -0.5, or every action +0.5
+        low, high = torch.full((8, 3), -0.5), torch.full((8, 3), 0.5)
+        return torch.stack([low, high]).expand(obs.shape[0], 2, 8, 3)
+
+    loss.actor.propose = propose
+    obs = flow.policy.as_obs_dict(torch.randn(5, 2, 2))
+    value = loss.next_value(None, obs)
+    # the online critics pick the +0.5 chunk; the target critics value it at -0.5 * h * A
+    assert torch.allclose(value, torch.full((5,), -0.5 * H_EXEC * 3))
+    # picking with the target critics would have chosen -0.5 and valued it at +6
+    acted = loss.actor(TensorDict({"observation": torch.randn(5, 2, 2)}, [5]))["action_chunk"]
+    assert torch.all(acted == 0.5)
+
+
+def test_qc_trains_the_flow_unless_frozen():
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    critic = ChunkCritic.from_policy(flow, input_shape=(H_EXEC, 3), hidden_dims=(16,))
+    batch = window_batch()[:32]
+    trained = QCLoss(flow, critic, num_samples=4)
+    flow_params = {id(p) for p in flow.parameters()}
+    assert flow_params <= {id(p) for p in trained.parameters()}
+    assert "loss_bc" in trained(batch)
+    frozen_flow = L1FlowActor.for_state(
+        obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16)
+    )
+    frozen = QCLoss(frozen_flow, critic, num_samples=4, freeze_flow=True)
+    assert not {id(p) for p in frozen_flow.parameters()} & {id(p) for p in frozen.parameters()}
+    assert "loss_bc" not in frozen(batch)
+
+
+def test_fql_distillation_sends_no_gradient_to_the_teacher():
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    mu = OneStepActor.from_flow(flow, hidden_dims=(32,))
+    loss = FQLLoss(mu, flow, ChunkCritic.from_policy(flow, input_shape=(H_EXEC, 3), hidden_dims=(16,)))
+    batch = window_batch()[:32]
+    loss_actor, meta = loss.actor_loss(batch)
+    loss_actor.backward()
+    assert all(p.grad is None for p in flow.parameters())  # teacher: no gradient from distillation
+    assert all(p.grad is None for p in loss.qvalue_network_params.values(True, True))  # nor the critics
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in mu.parameters())
+    assert meta["lambda"].item() > 0 and meta["distill_loss"].item() > 0
+    loss.bc_loss(batch)["loss_l1flow"].backward()  # the BC flow trains by its own loss
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in flow.parameters())
+
+
+def test_steering_noise_stays_in_bounds_and_the_flow_stays_unchanged():
+    torch.manual_seed(0)
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    before = {k: v.clone() for k, v in flow.state_dict().items()}
+    steer = NoiseActor.from_flow(flow, bound=1.5, hidden_dims=(32,))
+    critic = ChunkCritic.from_policy(flow, input_shape=(8, 3), hidden_dims=(32,), normalize_input=False)
+    loss = DSRLLoss(steer, critic, gamma=GAMMA, init_alpha=1e-3)
+    assert not {id(p) for p in flow.parameters()} & {id(p) for p in loss.parameters()}
+    optim = torch.optim.Adam(loss.parameters(), lr=1e-2)
+    batch = window_batch()[:64]
+    # noise the collector would have stored, and rewards that pay for large noise: the actor is pushed
+    # towards the bound
+    batch["noise"] = torch.rand(64, 8, 3) * 3 - 1.5
+    batch["next", "reward"] = batch["noise"].sum((1, 2)).unsqueeze(-1)
+    for _ in range(60):
+        out = loss(batch)
+        optim.zero_grad()
+        sum(v for k, v in out.items() if k.startswith("loss_")).backward()
+        optim.step()
+    for k, v in flow.state_dict().items():
+        assert torch.equal(v, before[k]), k
+    acted = steer(TensorDict({"observation": torch.randn(256, 2, 2)}, [256]))
+    noise = acted["noise_chunk"][:, 0]
+    assert torch.equal(acted["noise_chunk"], noise.unsqueeze(1).expand(-1, 4, 8, 3))  # one w per chunk
+    assert noise.abs().max() <= 1.5
+    assert noise.mean() > 0.3  # the actor did move (towards the rewarded +bound)
+    # the executed chunk is the flow's decoding of the chosen noise
+    obs = flow.policy.as_obs_dict(acted["observation"])
+    assert torch.allclose(acted["action_chunk"], flow.policy.executable(steer.decode(obs, noise)))
+
+
+def test_steering_under_the_multi_step_wrapper_gives_each_step_its_chunk_noise_and_counter():
+    from torchrl.modules import MultiStepActorWrapper
+
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    steer = NoiseActor.from_flow(flow, hidden_dims=(16,))
+    acting = MultiStepActorWrapper(steer, n_steps=4)
+    td = TensorDict({"observation": torch.randn(2, 2, 2), "is_init": torch.ones(2, 1, dtype=torch.bool)}, [2])
+    seen = []
+    for _ in range(5):
+        td = acting(td)
+        seen.append((int(td["counter"][0]), td["noise"].clone(), td["action"].clone()))
+        td["is_init"] = torch.zeros(2, 1, dtype=torch.bool)
+    assert [c for c, _, _ in seen] == [1, 2, 3, 4, 1]  # a new chunk every 4 steps
+    assert all(torch.equal(seen[0][1], n) for _, n, _ in seen[1:4]) and not torch.equal(
+        seen[0][1], seen[4][1]
+    )
+    # DSRL values only windows that start a chunk
+    loss = DSRLLoss(
+        steer, ChunkCritic.from_policy(flow, input_shape=(8, 3), hidden_dims=(8,), normalize_input=False)
+    )
+    batch = TensorDict(
+        {"counter": torch.tensor([[1], [2], [1]]), "chunk_valid": torch.tensor([[True], [True], [False]])},
+        [3],
+    )
+    assert loss.valid(batch, 3).tolist() == [True, False, False]
