@@ -6,28 +6,19 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import Tensor
 
+from l1flow_rl.doc_examples import chunk_loss_example
 from l1flow_rl.flow.objectives import LossType
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
 
 __all__ = ["RegressionLoss"]
 
 
+@chunk_loss_example("DirectSampler()")
 class RegressionLoss(ChunkLossBase):
     """``|f(0, obs) - x1|``: the UNet gets a zero chunk and no timestep (``DirectSampler``).
 
     On multi-modal demonstrations this collapses to the conditional median/mean, which is the
     contrast L1 Flow is measured against.
-
-    Examples:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> from l1flow_rl import L1FlowActor, RegressionLoss
-        >>> from l1flow_rl.flow import DirectSampler
-        >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64),
-        ...                               sampler=DirectSampler())
-        >>> td = TensorDict({"observation": torch.randn(4, 2, 5),
-        ...                  "action_chunk": torch.rand(4, 16, 2) * 2 - 1}, batch_size=[4])
-        >>> RegressionLoss(actor)(td)["loss_regression"].backward()
     """
 
     loss_name = "loss_regression"
