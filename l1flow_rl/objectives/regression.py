@@ -7,7 +7,7 @@ from tensordict.nn import TensorDictModule
 from torch import Tensor
 
 from l1flow_rl.doc_examples import chunk_loss_example
-from l1flow_rl.flow.objectives import LossType
+from l1flow_rl.flow.objectives import LossType, check_loss_type, pointwise_error
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
 
 __all__ = ["RegressionLoss"]
@@ -35,12 +35,10 @@ class RegressionLoss(ChunkLossBase):
         mask_padding: bool = False,
     ) -> None:
         super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
-        if loss_type not in ("l1", "mse"):
-            raise ValueError(f"loss_type must be 'l1' or 'mse', got {loss_type!r}")
-        self.loss_type = loss_type
+        self.loss_type = check_loss_type(loss_type)
 
     def _elementwise_loss(
         self, cond: Tensor, x1: Tensor, valid: Tensor | None
     ) -> tuple[Tensor, dict[str, Tensor]]:
         diff = self.policy.denoise(torch.zeros_like(x1), None, cond) - x1
-        return (diff.abs() if self.loss_type == "l1" else diff.square()), {}
+        return pointwise_error(diff, self.loss_type), {}
