@@ -59,6 +59,7 @@ __all__ = [
     "SimulatorNotInstalledError",
     "SimulatorSpec",
     "builtin_simulator_packages",
+    "check_task_simulator",
     "get_simulator",
     "register_simulator",
     "registered_simulators",
@@ -236,6 +237,15 @@ def register_simulator(spec: SimulatorSpec, *, replace: bool = False) -> Simulat
         )
     _REGISTRY[spec.name] = spec
     return spec
+
+
+def check_task_simulator(task: TaskConfig, simulator: str, env: object) -> None:
+    """Raise a ValueError naming the task unless it runs on ``simulator``; ``env`` is the env being
+    built on it (its class names the env in the message)."""
+    if task.simulator != simulator:
+        raise ValueError(
+            f"task {task.name!r} has simulator={task.simulator!r}; {type(env).__name__} needs {simulator!r}"
+        )
 
 
 def unregister_simulator(name: str) -> None:

@@ -14,12 +14,28 @@ from tensordict.utils import NestedKey
 from torch import Tensor
 
 from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.doc_examples import CRITIC, FLOW, add_example
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.policy import ChunkPolicy
 
 __all__ = ["BestOfNActor"]
 
 
+@add_example(
+    FLOW,
+    CRITIC,
+    """\
+>>> from torchrl.modules import MultiStepActorWrapper
+>>> from l1flow_rl import BestOfNActor
+>>> best = BestOfNActor(flow, critic, num_samples=16, rl_horizon=8)
+>>> best(TensorDict({"observation": torch.randn(3, 2, 5)}, [3]))["action_chunk"].shape
+torch.Size([3, 8, 2])
+>>> acting = MultiStepActorWrapper(best, n_steps=8)
+>>> is_init = torch.ones(3, 1, dtype=torch.bool)
+>>> acting(TensorDict({"observation": torch.randn(3, 2, 5), "is_init": is_init}, [3]))["action"].shape
+torch.Size([3, 2])
+""",
+)
 class BestOfNActor(TensorDictModuleBase):
     """Reads the observation history and writes the best of ``num_samples`` executable windows.
 
@@ -32,22 +48,6 @@ class BestOfNActor(TensorDictModuleBase):
 
     Proposals always start from random noise: under a deterministic exploration type the N draws
     from zero noise would coincide.
-
-    Examples:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> from torchrl.modules import MultiStepActorWrapper
-        >>> from l1flow_rl import BestOfNActor, L1FlowActor
-        >>> from l1flow_rl.networks.critic import ChunkCritic
-        >>> flow = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
-        >>> critic = ChunkCritic.from_policy(flow, input_shape=(8, 2), hidden_dims=(32,))
-        >>> best = BestOfNActor(flow, critic, num_samples=16, rl_horizon=8)
-        >>> best(TensorDict({"observation": torch.randn(3, 2, 5)}, [3]))["action_chunk"].shape
-        torch.Size([3, 8, 2])
-        >>> acting = MultiStepActorWrapper(best, n_steps=8)
-        >>> is_init = torch.ones(3, 1, dtype=torch.bool)
-        >>> acting(TensorDict({"observation": torch.randn(3, 2, 5), "is_init": is_init}, [3]))["action"].shape
-        torch.Size([3, 2])
     """
 
     def __init__(self, actor: L1FlowActor, critic: ChunkCritic, *, num_samples: int, rl_horizon: int) -> None:

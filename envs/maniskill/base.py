@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from l1flow_rl.envs.registry import check_task_simulator
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
@@ -34,11 +35,7 @@ class ManiSkillEnvBase(EnvBase):
         camera: str | None,
         reconfigure_each_episode: bool,
     ) -> None:
-        if task.simulator != "maniskill":
-            raise ValueError(
-                f"task {task.name!r} has simulator={task.simulator!r}; "
-                f"{type(self).__name__} needs 'maniskill'"
-            )
+        check_task_simulator(task, "maniskill", self)
         if task.obs_mode not in ("state", "rgb"):
             raise ValueError(f"task {task.name!r}: obs_mode must be 'state' or 'rgb', got {task.obs_mode!r}")
         if reconfigure_each_episode and device.type != "cpu":

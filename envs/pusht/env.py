@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import torch
 from l1flow_rl.envs.pusht.geometry import block_keypoints
+from l1flow_rl.envs.registry import check_task_simulator
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
@@ -84,8 +85,7 @@ class PushTEnv(EnvBase):
         render: bool = True,
         camera: str | None = None,
     ) -> None:
-        if task.simulator != "pusht":
-            raise ValueError(f"task {task.name!r} has simulator={task.simulator!r}; PushTEnv needs 'pusht'")
+        check_task_simulator(task, "pusht", self)
         if task.obs_mode not in OBS_MODES:
             raise ValueError(
                 f"task {task.name!r}: obs_mode must be one of {list(OBS_MODES)}, got {task.obs_mode!r}"

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from l1flow_rl.envs.registry import check_task_simulator
 from l1flow_rl.envs.robosuite import sim
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
@@ -56,10 +57,7 @@ class RobosuiteEnv(EnvBase):
         render: bool = True,
         camera: str | None = None,
     ) -> None:
-        if task.simulator != "robosuite":
-            raise ValueError(
-                f"task {task.name!r} has simulator={task.simulator!r}; RobosuiteEnv needs 'robosuite'"
-            )
+        check_task_simulator(task, "robosuite", self)
         if task.obs_mode not in ("state", "rgb"):
             raise ValueError(f"task {task.name!r}: obs_mode must be 'state' or 'rgb', got {task.obs_mode!r}")
         if not task.state_keys:

@@ -21,6 +21,7 @@ from typing import Any
 
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.envs.registry import registered_simulators
+from l1flow_rl.registries import register_unique
 
 __all__ = [
     "EvalProtocol",
@@ -88,10 +89,9 @@ _REGISTRY: dict[str, EvalProtocol] = {}
 
 def register_protocol(protocol: EvalProtocol, *, replace: bool = False) -> EvalProtocol:
     """Add a protocol; a second one under the same name is an error unless ``replace``."""
-    if protocol.name in _REGISTRY and not replace and _REGISTRY[protocol.name] is not protocol:
-        raise ValueError(f"an evaluation protocol named {protocol.name!r} is already registered")
-    _REGISTRY[protocol.name] = protocol
-    return protocol
+    return register_unique(
+        _REGISTRY, protocol.name, protocol, replace=replace, what="an evaluation protocol named"
+    )
 
 
 def _load_simulator_protocols() -> None:

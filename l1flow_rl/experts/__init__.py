@@ -6,22 +6,9 @@
 The data layer (:mod:`l1flow_rl.data`) reads what these write; it does not know how they were made.
 """
 
+from l1flow_rl.experts import registry
 from l1flow_rl.experts.cli import run_demos
-from l1flow_rl.experts.registry import (
-    DemoGenerationError,
-    ExpertSpec,
-    ensure_demos,
-    get_expert,
-    register_expert,
-    registered_experts,
-)
+from l1flow_rl.experts.registry import *  # noqa: F403  (its public names, listed once in its __all__)
 
-__all__ = [
-    "DemoGenerationError",
-    "ExpertSpec",
-    "ensure_demos",
-    "get_expert",
-    "register_expert",
-    "registered_experts",
-    "run_demos",
-]
+__all__ = ["run_demos"]
+__all__ += registry.__all__

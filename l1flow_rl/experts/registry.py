@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from l1flow_rl.registries import register_unique
+
 if TYPE_CHECKING:  # pragma: no cover
     from l1flow_rl.config import TaskConfig
 
@@ -81,10 +83,7 @@ _REGISTRY: dict[str, ExpertSpec] = {}
 
 
 def register_expert(spec: ExpertSpec, *, replace: bool = False) -> ExpertSpec:
-    if spec.simulator in _REGISTRY and not replace and _REGISTRY[spec.simulator] is not spec:
-        raise ValueError(f"an expert for simulator {spec.simulator!r} is already registered")
-    _REGISTRY[spec.simulator] = spec
-    return spec
+    return register_unique(_REGISTRY, spec.simulator, spec, replace=replace, what="an expert for simulator")
 
 
 def unregister_expert(simulator: str) -> None:

@@ -8,7 +8,7 @@ from torch import Tensor
 
 from l1flow_rl.flow.time import broadcast_time
 
-__all__ = ["LossSpace", "LossType", "sample_prediction_error"]
+__all__ = ["LossSpace", "LossType", "check_loss_type", "pointwise_error", "sample_prediction_error"]
 
 LossType = Literal["l1", "mse"]
 LossSpace = Literal["x", "v"]
@@ -36,8 +36,16 @@ def sample_prediction_error(
         diff = diff / (1.0 - broadcast_time(t, diff)).clamp_min(min_remaining)
     elif space != "x":
         raise ValueError(f"loss space must be 'x' or 'v', got {space!r}")
-    if loss_type == "l1":
-        return diff.abs()
-    if loss_type == "mse":
-        return diff.square()
-    raise ValueError(f"loss type must be 'l1' or 'mse', got {loss_type!r}")
+    return pointwise_error(diff, loss_type)
+
+
+def check_loss_type(loss_type: str) -> LossType:
+    """``loss_type`` itself when it is ``"l1"`` or ``"mse"``; else a ValueError naming it."""
+    if loss_type not in ("l1", "mse"):
+        raise ValueError(f"loss_type must be 'l1' or 'mse', got {loss_type!r}")
+    return loss_type  # type: ignore[return-value]
+
+
+def pointwise_error(diff: Tensor, loss_type: LossType) -> Tensor:
+    """``|diff|`` (``"l1"``) or ``diff ** 2`` (``"mse"``), element-wise."""
+    return diff.abs() if check_loss_type(loss_type) == "l1" else diff.square()

@@ -24,6 +24,7 @@ from tensordict.utils import NestedKey
 from torch import Tensor
 from torchrl.objectives import LossModule
 
+from l1flow_rl.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
 from l1flow_rl.networks.critic import ChunkCritic, critic_module
 from l1flow_rl.objectives.chunk_loss import required_entry
 from l1flow_rl.policy import ChunkPolicy
@@ -33,6 +34,17 @@ __all__ = ["ChunkCriticLoss"]
 Q_AGGREGATIONS = ("mean", "min")
 
 
+@add_example(
+    FLOW,
+    CRITIC,
+    """\
+>>> from l1flow_rl import ChunkCriticLoss
+>>> bc_chunk = lambda obs: flow.policy(obs)  # the BC policy's next chunk: TD-only
+>>> loss_fn = ChunkCriticLoss(critic, flow, next_actor=bc_chunk)
+""",
+    TRANSITIONS,
+    TRAIN_STEP,
+)
 class ChunkCriticLoss(LossModule):
     """TD loss of an ensemble of chunk critics; usable alone with any next-chunk actor.
 
@@ -57,22 +69,6 @@ class ChunkCriticLoss(LossModule):
     return), ``("next", "terminated")`` [*B, 1], ``("next", "observation")`` and ``"chunk_valid"``
     [*B, 1] (absent: all valid). Returns ``"loss_qvalue"`` and detached ``"q_data_mean"``,
     ``"target_mean"``, ``"td_error_abs"``, ``"valid_fraction"``.
-
-    Examples:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> from torchrl.objectives import SoftUpdate
-        >>> from l1flow_rl import ChunkCriticLoss, L1FlowActor
-        >>> from l1flow_rl.networks.critic import ChunkCritic
-        >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
-        >>> critic = ChunkCritic.from_policy(actor, input_shape=(8, 2), hidden_dims=(32,))
-        >>> bc_chunk = lambda obs: actor.policy(obs)  # the BC policy's next chunk: TD-only
-        >>> loss_fn = ChunkCriticLoss(critic, actor, next_actor=bc_chunk)
-        >>> td = TensorDict({"observation": torch.randn(4, 2, 5), "action_chunk": torch.rand(4, 16, 2),
-        ...                  "next": {"observation": torch.randn(4, 2, 5), "reward": torch.rand(4, 1),
-        ...                           "terminated": torch.zeros(4, 1, dtype=torch.bool)}}, [4])
-        >>> loss_fn(td)["loss_qvalue"].backward()
-        >>> SoftUpdate(loss_fn, tau=0.005).step()
     """
 
     @dataclass

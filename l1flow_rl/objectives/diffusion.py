@@ -6,26 +6,18 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import Tensor
 
+from l1flow_rl.doc_examples import chunk_loss_example
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
 
 __all__ = ["DiffusionLoss"]
 
 
+@chunk_loss_example("DDPMSampler()")
 class DiffusionLoss(ChunkLossBase):
     """Noise a chunk to a random DDPM step k (squaredcos_cap_v2) and regress the noise with MSE.
 
     The network sees the integer step k. Sample with ``DDPMSampler()`` (100 NFE) or
     ``DDIMSampler(k)``; both share the schedule this loss trains on.
-
-    Examples:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> from l1flow_rl import DiffusionLoss, L1FlowActor
-        >>> from l1flow_rl.flow import DDPMSampler
-        >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64), sampler=DDPMSampler())
-        >>> td = TensorDict({"observation": torch.randn(4, 2, 5),
-        ...                  "action_chunk": torch.rand(4, 16, 2) * 2 - 1}, batch_size=[4])
-        >>> DiffusionLoss(actor)(td)["loss_diffusion"].backward()
     """
 
     loss_name = "loss_diffusion"

@@ -19,6 +19,7 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 from torch import Tensor, nn
 
+from l1flow_rl.doc_examples import FLOW, TRAIN_STEP, TRANSITIONS, add_example
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.noise_actor import NoiseActor, NoisePolicy
 from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
@@ -26,6 +27,22 @@ from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 __all__ = ["DSRLLoss"]
 
 
+@add_example(
+    FLOW,
+    """\
+>>> from l1flow_rl import DSRLLoss, NoiseActor
+>>> steer = NoiseActor.from_flow(flow, bound=1.5, hidden_dims=(64,))
+>>> critic = ChunkCritic.from_policy(
+...     flow, input_shape=(16, 2), hidden_dims=(32,), normalize_input=False
+... )
+>>> loss_fn = DSRLLoss(steer, critic)
+""",
+    TRANSITIONS,
+    """\
+>>> td["noise"] = torch.rand(4, 16, 2)  # the w each chunk was decoded from
+""",
+    TRAIN_STEP,
+)
 class DSRLLoss(ChunkCriticLoss):
     """SAC in the flow's noise space (DSRL's plain variant: the critic is Q(s, w)).
 
@@ -42,25 +59,6 @@ class DSRLLoss(ChunkCriticLoss):
     The batch holds ``"noise"`` [*B, H, A], the w its chunk was decoded from, besides the critic
     entries. Returns ``"loss_qvalue"``, ``"loss_actor"``, ``"loss_alpha"`` and detached
     ``"alpha"``, ``"entropy"``, ``"q_actor_mean"`` and the critic diagnostics.
-
-    Examples:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> from torchrl.objectives import SoftUpdate
-        >>> from l1flow_rl import DSRLLoss, L1FlowActor, NoiseActor
-        >>> from l1flow_rl.networks.critic import ChunkCritic
-        >>> flow = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
-        >>> steer = NoiseActor.from_flow(flow, bound=1.5, hidden_dims=(64,))
-        >>> critic = ChunkCritic.from_policy(
-        ...     flow, input_shape=(16, 2), hidden_dims=(32,), normalize_input=False
-        ... )
-        >>> loss_fn = DSRLLoss(steer, critic)
-        >>> td = TensorDict({"observation": torch.randn(4, 2, 5), "noise": torch.rand(4, 16, 2),
-        ...                  "next": {"observation": torch.randn(4, 2, 5), "reward": torch.rand(4, 1),
-        ...                           "terminated": torch.zeros(4, 1, dtype=torch.bool)}}, [4])
-        >>> out = loss_fn(td)
-        >>> sum(v for k, v in out.items() if k.startswith("loss_")).backward()
-        >>> SoftUpdate(loss_fn, tau=0.005).step()
     """
 
     @dataclass

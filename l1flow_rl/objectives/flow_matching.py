@@ -6,6 +6,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import Tensor
 
+from l1flow_rl.doc_examples import chunk_loss_example
 from l1flow_rl.flow.time import interpolate
 from l1flow_rl.flow.timesteps import TimestepDistribution, make_timesteps
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
@@ -13,6 +14,7 @@ from l1flow_rl.objectives.chunk_loss import ChunkLossBase
 __all__ = ["FlowMatchingLoss"]
 
 
+@chunk_loss_example("VelocityEulerSampler(10)")
 class FlowMatchingLoss(ChunkLossBase):
     """The network predicts the velocity ``x1 - x0`` along the straight path; loss ``|v_hat - (x1 - x0)|^2``.
 
@@ -20,17 +22,6 @@ class FlowMatchingLoss(ChunkLossBase):
         actor_network: an :class:`~l1flow_rl.L1FlowActor` built with ``sampler=VelocityEulerSampler(10)``.
         timesteps: ``"beta"`` (default; Beta(1, 1.5) scaled by 0.999), ``"uniform"``, ``"mixed"``
             or a :class:`~l1flow_rl.flow.TimestepDistribution`.
-
-    Examples:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> from l1flow_rl import FlowMatchingLoss, L1FlowActor
-        >>> from l1flow_rl.flow import VelocityEulerSampler
-        >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64),
-        ...                               sampler=VelocityEulerSampler(10))
-        >>> td = TensorDict({"observation": torch.randn(4, 2, 5),
-        ...                  "action_chunk": torch.rand(4, 16, 2) * 2 - 1}, batch_size=[4])
-        >>> FlowMatchingLoss(actor)(td)["loss_flow_matching"].backward()
     """
 
     loss_name = "loss_flow_matching"

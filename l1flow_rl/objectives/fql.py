@@ -15,6 +15,7 @@ from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
 from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.objectives.l1flow import L1FlowLoss
@@ -23,6 +24,21 @@ from l1flow_rl.one_step_actor import OneStepActor, OneStepPolicy
 __all__ = ["FQLLoss"]
 
 
+@add_example(
+    FLOW,
+    CRITIC,
+    """\
+>>> from l1flow_rl import FQLLoss, OneStepActor
+>>> mu = OneStepActor.from_flow(flow, hidden_dims=(64,))
+>>> loss_fn = FQLLoss(mu, flow, critic, alpha=10.0)
+""",
+    TRANSITIONS,
+    TRAIN_STEP,
+    """\
+>>> sorted(k for k in out.keys() if k.startswith("loss_"))
+['loss_actor', 'loss_bc', 'loss_qvalue']
+""",
+)
 class FQLLoss(ChunkCriticLoss):
     """FQL: chunk-critic TD, the one-step actor's distill-and-climb loss, and the flow's BC loss.
 
@@ -39,25 +55,6 @@ class FQLLoss(ChunkCriticLoss):
 
     Returns ``"loss_qvalue"``, ``"loss_actor"``, ``"loss_bc"`` and detached ``"q_actor_mean"``,
     ``"distill_loss"``, ``"lambda"`` and the critic diagnostics.
-
-    Examples:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> from torchrl.objectives import SoftUpdate
-        >>> from l1flow_rl import FQLLoss, L1FlowActor, OneStepActor
-        >>> from l1flow_rl.networks.critic import ChunkCritic
-        >>> flow = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
-        >>> mu = OneStepActor.from_flow(flow, hidden_dims=(64,))
-        >>> critic = ChunkCritic.from_policy(flow, input_shape=(8, 2), hidden_dims=(32,))
-        >>> loss_fn = FQLLoss(mu, flow, critic, alpha=10.0)
-        >>> td = TensorDict({"observation": torch.randn(4, 2, 5), "action_chunk": torch.rand(4, 16, 2),
-        ...                  "next": {"observation": torch.randn(4, 2, 5), "reward": torch.rand(4, 1),
-        ...                           "terminated": torch.zeros(4, 1, dtype=torch.bool)}}, [4])
-        >>> out = loss_fn(td)
-        >>> sorted(k for k in out.keys() if k.startswith("loss_"))
-        ['loss_actor', 'loss_bc', 'loss_qvalue']
-        >>> sum(v for k, v in out.items() if k.startswith("loss_")).backward()
-        >>> SoftUpdate(loss_fn, tau=0.005).step()
     """
 
     actor_network: OneStepActor

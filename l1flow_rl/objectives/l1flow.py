@@ -6,7 +6,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import Tensor
 
-from l1flow_rl.flow.objectives import LossSpace, LossType, sample_prediction_error
+from l1flow_rl.flow.objectives import LossSpace, LossType, check_loss_type, sample_prediction_error
 from l1flow_rl.flow.samplers import TwoStepSampler
 from l1flow_rl.flow.time import interpolate
 from l1flow_rl.flow.timesteps import TimestepDistribution, make_timesteps
@@ -64,12 +64,11 @@ class L1FlowLoss(ChunkLossBase):
         mask_padding: bool = False,
     ) -> None:
         super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
-        if loss_type not in ("l1", "mse"):
-            raise ValueError(f"loss_type must be 'l1' or 'mse', got {loss_type!r}")
+        self.loss_type = check_loss_type(loss_type)
         if loss_space not in ("x", "v"):
             raise ValueError(f"loss_space must be 'x' or 'v', got {loss_space!r}")
         self.timesteps = make_timesteps(timesteps)
-        self.loss_type, self.loss_space = loss_type, loss_space
+        self.loss_space = loss_space
         if t_first is not None:
             self.policy.sampler = TwoStepSampler(t_first)
 

@@ -14,6 +14,7 @@ from torch import Tensor
 
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.best_of_n_actor import BestOfNActor
+from l1flow_rl.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.objectives.l1flow import L1FlowLoss
@@ -21,6 +22,20 @@ from l1flow_rl.objectives.l1flow import L1FlowLoss
 __all__ = ["QCLoss"]
 
 
+@add_example(
+    FLOW,
+    CRITIC,
+    """\
+>>> from l1flow_rl import QCLoss
+>>> loss_fn = QCLoss(flow, critic, num_samples=4)
+""",
+    TRANSITIONS,
+    TRAIN_STEP,
+    """\
+>>> loss_fn.actor(TensorDict({"observation": torch.randn(3, 2, 5)}, [3]))["action_chunk"].shape
+torch.Size([3, 8, 2])
+""",
+)
 class QCLoss(ChunkCriticLoss):
     """Chunk-critic TD with QC's best-of-N backup, plus the flow's BC loss.
 
@@ -37,24 +52,6 @@ class QCLoss(ChunkCriticLoss):
     critics with this loss, so acting follows training.
 
     Returns ``"loss_qvalue"``, ``"loss_bc"`` (absent when frozen) and detached diagnostics.
-
-    Examples:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> from torchrl.objectives import SoftUpdate
-        >>> from l1flow_rl import L1FlowActor, QCLoss
-        >>> from l1flow_rl.networks.critic import ChunkCritic
-        >>> flow = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
-        >>> critic = ChunkCritic.from_policy(flow, input_shape=(8, 2), hidden_dims=(32,))
-        >>> loss_fn = QCLoss(flow, critic, num_samples=4)
-        >>> td = TensorDict({"observation": torch.randn(4, 2, 5), "action_chunk": torch.rand(4, 16, 2),
-        ...                  "next": {"observation": torch.randn(4, 2, 5), "reward": torch.rand(4, 1),
-        ...                           "terminated": torch.zeros(4, 1, dtype=torch.bool)}}, [4])
-        >>> out = loss_fn(td)
-        >>> sum(v for k, v in out.items() if k.startswith("loss_")).backward()
-        >>> SoftUpdate(loss_fn, tau=0.005).step()
-        >>> loss_fn.actor(TensorDict({"observation": torch.randn(3, 2, 5)}, [3]))["action_chunk"].shape
-        torch.Size([3, 8, 2])
     """
 
     def __init__(

@@ -6,28 +6,19 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import Tensor
 
-from l1flow_rl.flow.objectives import LossType
+from l1flow_rl.doc_examples import chunk_loss_example
+from l1flow_rl.flow.objectives import LossType, check_loss_type, pointwise_error
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
 
 __all__ = ["RegressionLoss"]
 
 
+@chunk_loss_example("DirectSampler()")
 class RegressionLoss(ChunkLossBase):
     """``|f(0, obs) - x1|``: the UNet gets a zero chunk and no timestep (``DirectSampler``).
 
     On multi-modal demonstrations this collapses to the conditional median/mean, which is the
     contrast L1 Flow is measured against.
-
-    Examples:
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> from l1flow_rl import L1FlowActor, RegressionLoss
-        >>> from l1flow_rl.flow import DirectSampler
-        >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(32, 64),
-        ...                               sampler=DirectSampler())
-        >>> td = TensorDict({"observation": torch.randn(4, 2, 5),
-        ...                  "action_chunk": torch.rand(4, 16, 2) * 2 - 1}, batch_size=[4])
-        >>> RegressionLoss(actor)(td)["loss_regression"].backward()
     """
 
     loss_name = "loss_regression"
@@ -44,12 +35,10 @@ class RegressionLoss(ChunkLossBase):
         mask_padding: bool = False,
     ) -> None:
         super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
-        if loss_type not in ("l1", "mse"):
-            raise ValueError(f"loss_type must be 'l1' or 'mse', got {loss_type!r}")
-        self.loss_type = loss_type
+        self.loss_type = check_loss_type(loss_type)
 
     def _elementwise_loss(
         self, cond: Tensor, x1: Tensor, valid: Tensor | None
     ) -> tuple[Tensor, dict[str, Tensor]]:
         diff = self.policy.denoise(torch.zeros_like(x1), None, cond) - x1
-        return (diff.abs() if self.loss_type == "l1" else diff.square()), {}
+        return pointwise_error(diff, self.loss_type), {}

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from l1flow_rl.networks.encoders.base import ObservationEncoder, image_entries
+from l1flow_rl.registries import register_unique
 
 __all__ = [
     "AUTO",
@@ -53,10 +54,7 @@ _REGISTRY: dict[str, EncoderSpec] = {}
 def register_encoder(spec: EncoderSpec, *, replace: bool = False) -> EncoderSpec:
     if spec.name == AUTO:
         raise ValueError(f"{AUTO!r} is reserved (it picks an encoder from the observation)")
-    if spec.name in _REGISTRY and not replace and _REGISTRY[spec.name] is not spec:
-        raise ValueError(f"an encoder named {spec.name!r} is already registered")
-    _REGISTRY[spec.name] = spec
-    return spec
+    return register_unique(_REGISTRY, spec.name, spec, replace=replace, what="an encoder named")
 
 
 def encoder_names() -> list[str]:
