@@ -7,13 +7,18 @@ unless ``--out`` says otherwise.
 
     .venv/bin/python -m benchmarks.bench_robosuite_experts [--seeds 100] [--tasks robosuite_lift ...]
     .venv/bin/python -m benchmarks.bench_robosuite_experts --quick [--out PATH]
+
+Rows of tasks not run this time are kept from the file being written (each row carries its own
+machine figures), so one task can be measured again without re-running the others.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import time
+from pathlib import Path
 
 import torch
 
@@ -61,20 +66,33 @@ def run_task(name: str, seeds: int) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=100)
-    parser.add_argument("--tasks", nargs="*", default=["robosuite_lift", "robosuite_stack", "robosuite_can"])
+    parser.add_argument(
+        "--tasks",
+        nargs="*",
+        default=["robosuite_lift", "robosuite_stack", "robosuite_can", "robosuite_square"],
+    )
     parser.add_argument("--out", default=None, help=f"default: {DEFAULT_OUT} ({QUICK_OUT} with --quick)")
     parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not speed")
     args = parser.parse_args(argv)
     if args.quick:
         args.seeds = QUICK_SEEDS
     torch.set_num_threads(1)
+    out_path = Path(args.out or (QUICK_OUT if args.quick else DEFAULT_OUT))
     machine_start = machine_info()
-    rows = [run_task(name, args.seeds) for name in args.tasks]
+    rows = []
+    for name in args.tasks:
+        start = machine_info()
+        rows.append(
+            {**run_task(name, args.seeds), "machine_at_start": start, "machine_at_end": machine_info()}
+        )
+    if out_path.is_file():
+        kept = [r for r in json.loads(out_path.read_text())["rows"] if r["task"] not in args.tasks]
+        rows = kept + rows
     print(
         format_table(rows, ["task", "seeds", "success_rate", "seconds_per_episode", "steps_per_success_mean"])
     )
     figures = {"quick": args.quick, "machine_at_start": machine_start, "machine_at_end": machine_info()}
-    out = save_results(args.out or (QUICK_OUT if args.quick else DEFAULT_OUT), {**figures, "rows": rows})
+    out = save_results(out_path, {**figures, "rows": rows})
     print(f"wrote {out}")
     return 0
 

@@ -19,7 +19,9 @@ from l1flow_rl.experts.robosuite.demos import run_episode  # noqa: E402
 from l1flow_rl.experts.robosuite.scripted import canonical_rotvec  # noqa: E402
 
 
-@pytest.mark.parametrize("task_name", ["robosuite_lift", "robosuite_stack", "robosuite_can"])
+@pytest.mark.parametrize(
+    "task_name", ["robosuite_lift", "robosuite_stack", "robosuite_can", "robosuite_square"]
+)
 def test_expert_succeeds_on_most_of_five_seeds(task_name):
     task = load_task_config(task_name)
     env = sim.make_from_env_args(sim.env_args_for_task(task, cameras=[]))

@@ -4,7 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["PADDING_RULES", "DataConfig", "DemosConfig"]
+from omegaconf import OmegaConf
+
+__all__ = ["PADDING_RULES", "QUALITIES", "QUALITY_LABELS", "DataConfig", "DemosConfig", "quality_problems"]
+
+#: what ``demos.quality`` takes: expert demonstrations, or a labelled mix (l1flow_rl.experts.quality)
+QUALITIES = ("expert", "mixed")
+#: the per-episode labels of a mixed set, which ``data.labels`` selects from
+QUALITY_LABELS = ("expert", "noisy", "recovered", "failed")
 
 
 @dataclass
@@ -15,6 +22,7 @@ class DemosConfig:
     # Give up when this many planner attempts in a row fail (a task whose planner never succeeds).
     max_consecutive_failures: int = 50
     seed: int = 0
+    quality: str = "expert"  # QUALITIES
 
 
 #: how far chunks reach past an episode's ends (see l1flow_rl.data.chunks and
@@ -33,3 +41,24 @@ class DataConfig:
     # LeRobot); None: the task's expert makes demos.num demonstrations under data_dir.
     path: str | None = None
     padding: str = "maniskill"  # maniskill | diffusion_policy (PADDING_RULES)
+    # Keep only episodes with these quality labels (QUALITY_LABELS, stored per episode by
+    # demos.quality=mixed); None: every episode.
+    labels: list[str] | None = None
+
+
+def quality_problems(cfg, command: str) -> list[str]:
+    """demos.quality is one of QUALITIES; data.labels lists known labels, at least one (a check of
+    :data:`l1flow_rl.config.validate.BUILTIN_CHECKS`)."""
+    problems = []
+    quality = OmegaConf.select(cfg, "demos.quality", default="expert")
+    if quality not in QUALITIES:
+        problems.append(f"demos.quality={quality!r}: expected one of {list(QUALITIES)}")
+    labels = OmegaConf.select(cfg, "data.labels", default=None)
+    if labels is not None:
+        unknown = [lb for lb in labels if lb not in QUALITY_LABELS]
+        if unknown or not labels:
+            problems.append(
+                f"data.labels={list(labels)!r}: unknown label(s) {unknown}; expected a non-empty subset of "
+                f"{list(QUALITY_LABELS)}"
+            )
+    return problems

@@ -34,7 +34,7 @@ from typing import Any, get_args
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from l1flow_rl.config import finetune
-from l1flow_rl.config.data import PADDING_RULES
+from l1flow_rl.config.data import PADDING_RULES, quality_problems
 from l1flow_rl.config.task import CONTROL_KINDS, TaskConfig
 from l1flow_rl.config.train import LOGGERS
 from l1flow_rl.envs.registry import registered_simulators
@@ -190,6 +190,7 @@ BUILTIN_CHECKS: tuple[Check, ...] = (
     eval_config_problems,
     *finetune.CHECKS,
     finetune_algorithm_problems,
+    quality_problems,
 )
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -28,6 +29,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import LazyMemmapStorage
 
+from l1flow_rl.config.data import QUALITY_LABELS
 from l1flow_rl.data.episodes import EpisodeDataError, where
 from l1flow_rl.data.metadata import EpisodeMetadata, attach_metadata, episodes_metadata, strip_metadata
 from l1flow_rl.data.publish import publish_dir
@@ -95,8 +97,34 @@ def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
         raise TypeError(f"{path}: option not understood by the {reader.format_name} reader: {err}") from err
 
 
-def _episode_lengths(reader: EpisodeFile) -> tuple[list[int], list[int]]:
+def _selected_ids(reader: EpisodeFile, labels: Sequence[str] | None) -> list[int]:
+    """The reader's episode ids, only those whose quality label is in ``labels`` when given."""
     ids = reader.episode_ids()
+    if labels is None:
+        return ids
+    unknown = [lb for lb in labels if lb not in QUALITY_LABELS]
+    if unknown or not labels:
+        raise ValueError(
+            f"labels={list(labels)!r}: unknown label(s) {unknown}; expected a non-empty subset of "
+            f"{list(QUALITY_LABELS)}"
+        )
+    found = reader.episode_labels()
+    if found is None:
+        raise EpisodeDataError(
+            f"{reader.path}: records no quality labels, so labels={list(labels)!r} selects nothing; "
+            "make a labelled set with demos.quality=mixed, or drop the labels filter"
+        )
+    kept = [e for e in ids if found[e] in labels]
+    if not kept:
+        counts = {lb: sum(v == lb for v in found.values()) for lb in sorted(set(found.values()))}
+        raise EpisodeDataError(
+            f"{reader.path}: no episode is labelled {list(labels)} (the file holds {counts})"
+        )
+    return kept
+
+
+def _episode_lengths(reader: EpisodeFile, labels: Sequence[str] | None = None) -> tuple[list[int], list[int]]:
+    ids = _selected_ids(reader, labels)
     if not ids:
         raise EpisodeDataError(f"{reader.path}: contains no episodes")
     lengths = [reader.episode_length(e) for e in ids]
@@ -133,8 +161,10 @@ def _fingerprint(path: Path, options: dict) -> dict:
     }
 
 
-def _load_memmap(reader: EpisodeFile, options: dict, target: Path, progress: bool) -> TensorDictBase:
-    fingerprint = _fingerprint(reader.path, options)
+def _load_memmap(
+    reader: EpisodeFile, options: dict, target: Path, progress: bool, labels: Sequence[str] | None = None
+) -> TensorDictBase:
+    fingerprint = _fingerprint(reader.path, {**options, **({"labels": list(labels)} if labels else {})})
     marker = target / SOURCE_FILE
     if marker.is_file():
         stored = json.loads(marker.read_text())
@@ -142,7 +172,7 @@ def _load_memmap(reader: EpisodeFile, options: dict, target: Path, progress: boo
             "layout"
         ) != LAYOUT_VERSION:
             shutil.rmtree(target)  # our own copy of this very source in an older step layout: rebuild
-            return _load_memmap(reader, options, target, progress)
+            return _load_memmap(reader, options, target, progress, labels)
         if stored["fingerprint"] != fingerprint:
             raise EpisodeDataError(
                 f"{target}: holds a stored copy of {stored['fingerprint']['source']} (or of an older "
@@ -154,7 +184,7 @@ def _load_memmap(reader: EpisodeFile, options: dict, target: Path, progress: boo
         raise EpisodeDataError(
             f"{target}: exists and is not a stored copy made by load_episodes; choose another memmap_dir"
         )
-    ids, lengths = _episode_lengths(reader)
+    ids, lengths = _episode_lengths(reader, labels)
     tmp = target.parent / f".{target.name}.partial-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.parent.mkdir(parents=True, exist_ok=True)
@@ -180,14 +210,19 @@ def _load_memmap(reader: EpisodeFile, options: dict, target: Path, progress: boo
         marker_tmp = tmp / SOURCE_FILE
         marker_tmp.write_text(json.dumps({"fingerprint": fingerprint, "metadata": reader.metadata}, indent=1))
         if not publish_dir(tmp, target):  # another process stored the same file first
-            return _load_memmap(reader, options, target, progress)  # checks its fingerprint
+            return _load_memmap(reader, options, target, progress, labels)  # checks its fingerprint
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return TensorDict.load_memmap(target)
 
 
 def load_episodes(
-    path: str | os.PathLike, *, memmap_dir: str | os.PathLike | None = None, progress: bool = False, **options
+    path: str | os.PathLike,
+    *,
+    memmap_dir: str | os.PathLike | None = None,
+    progress: bool = False,
+    labels: Sequence[str] | None = None,
+    **options,
 ) -> TensorDictBase:
     """Read every episode of a demonstration file into the layout of :mod:`l1flow_rl.data.episodes`.
 
@@ -196,6 +231,8 @@ def load_episodes(
         memmap_dir: store the steps memory-mapped under this directory (reused when the source is
             unchanged) instead of in RAM.
         progress: show a progress bar while storing.
+        labels: keep only the episodes with these quality labels (a ``demos.quality=mixed`` file;
+            see :data:`l1flow_rl.config.data.QUALITY_LABELS`); None keeps every episode.
         **options: for the format's reader, e.g. ``control_mode="pd_ee_delta_pos"`` for ManiSkill.
 
     Example:
@@ -206,8 +243,8 @@ def load_episodes(
     with open_episode_file(path, **options) as reader:
         meta = EpisodeMetadata.from_dict(reader.metadata)
         if memmap_dir is not None:
-            data = _load_memmap(reader, options, Path(memmap_dir), progress)
+            data = _load_memmap(reader, options, Path(memmap_dir), progress, labels)
             extra = {**meta.extra, "memmap_dir": str(Path(memmap_dir).resolve())}
             return attach_metadata(data, EpisodeMetadata.from_dict({**meta.__dict__, "extra": extra}))
-        ids, _ = _episode_lengths(reader)
+        ids, _ = _episode_lengths(reader, labels)
         return attach_metadata(_stack(reader, ids, [reader.read_episode(e) for e in ids]), meta)

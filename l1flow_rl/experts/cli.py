@@ -17,6 +17,11 @@ def demo_options(cfg: DictConfig, task) -> dict:
     positional; the rest, e.g. ManiSkill's ``max_consecutive_failures``, only where accepted)."""
     spec = get_expert(task)
     demos = OmegaConf.to_container(cfg.demos, resolve=True)
+    if demos.get("quality", "expert") != "expert" and "quality" not in spec.options:
+        raise DemoGenerationError(
+            f"demos.quality={demos['quality']!r}: the {spec.simulator} expert makes expert demonstrations "
+            "only (mixed quality: robosuite and ManiSkill tasks)"
+        )
     return {k: v for k, v in demos.items() if k not in ("num", "seed") and k in spec.options}
 
 

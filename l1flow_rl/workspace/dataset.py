@@ -66,7 +66,8 @@ def load_task_episodes(cfg: DictConfig, dataset: Path) -> TensorDictBase:
             f"task.control_mode={recorded}"
         )
     memmap_dir = dataset.with_suffix(".memmap") if cfg.task.obs_mode != "state" else None
-    return load_episodes(dataset, memmap_dir=memmap_dir, **options)
+    labels = list(cfg.data.labels) if cfg.data.get("labels") is not None else None
+    return load_episodes(dataset, memmap_dir=memmap_dir, labels=labels, **options)
 
 
 def chunk_padding(cfg: DictConfig, episodes: TensorDictBase) -> dict:

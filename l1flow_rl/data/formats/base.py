@@ -37,6 +37,11 @@ class EpisodeFile(abc.ABC):
     def read_episode(self, episode: int) -> TensorDict:
         """One episode in the layout of :mod:`l1flow_rl.data.episodes`, validated."""
 
+    def episode_labels(self) -> dict[int, str] | None:
+        """Each episode's quality label (``expert``, ``noisy``, ...; see ``demos.quality=mixed``),
+        None when the file records none."""
+        return None
+
     def close(self) -> None:  # noqa: B027 - readers without open handles need nothing
         pass
 

@@ -113,6 +113,19 @@ class ManiSkillFile(EpisodeFile):
     def episode_length(self, episode: int) -> int:
         return self._dataset(episode, "actions").shape[0]
 
+    def episode_labels(self) -> dict[int, str] | None:
+        """Each episode's ``quality`` entry in the ``.json``; None when no episode has one."""
+        labels = {int(ep["episode_id"]): ep.get("quality") for ep in self.episodes}
+        if all(v is None for v in labels.values()):
+            return None
+        missing = [e for e, v in labels.items() if v is None]
+        if missing:
+            raise EpisodeDataError(
+                f"{where(self.path.with_suffix('.json'), missing[0], 'quality')}: missing, while other "
+                f"episodes carry a quality label ({len(missing)} episodes lack one)"
+            )
+        return {e: str(v) for e, v in labels.items()}
+
     def _dataset(self, episode: int, key: str):
         group = self.h5[f"traj_{episode}"]
         if key not in group:

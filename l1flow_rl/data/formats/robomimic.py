@@ -188,6 +188,20 @@ class RobomimicFile(EpisodeFile):
     def episode_length(self, episode: int) -> int:
         return self._dataset(episode, "actions").shape[0]
 
+    def episode_labels(self) -> dict[int, str] | None:
+        """Each demo's ``quality`` attribute (written with robomimic's ``mask/<label>`` filter
+        keys); None when no demo has one."""
+        labels = {e: self._group(e).attrs.get("quality") for e in self.demos}
+        if all(v is None for v in labels.values()):
+            return None
+        missing = [self.demos[e] for e, v in labels.items() if v is None]
+        if missing:
+            raise EpisodeDataError(
+                f"{where(self.path, missing[0], 'quality')}: missing, while other demos carry a quality "
+                f"label ({len(missing)} demos lack one)"
+            )
+        return {e: v.decode() if isinstance(v, bytes) else str(v) for e, v in labels.items()}
+
     def _read(self, episode: int, key: str) -> torch.Tensor:
         return as_tensor(self._dataset(episode, key)[()], self.path, self.demos[episode], key)
 

@@ -11,6 +11,6 @@ EXPERT = register_expert(
         simulator="maniskill",
         make="l1flow_rl.experts.maniskill.demos:ensure_maniskill_demos",
         description="ManiSkill motion planning (mani_skill.examples.motionplanning), replayed with rewards",
-        options=("max_consecutive_failures", "attempt_timeout", "workers", "progress"),
+        options=("max_consecutive_failures", "attempt_timeout", "workers", "quality", "progress"),
     )
 )

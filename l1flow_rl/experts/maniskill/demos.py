@@ -38,6 +38,7 @@ import h5py
 
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.experts.maniskill._plan_worker import ATTEMPT_MARK, NO_SOLUTION_EXIT, READY_MARK
+from l1flow_rl.experts.quality import check_quality
 from l1flow_rl.experts.registry import DemoGenerationError
 
 __all__ = ["dataset_path", "ensure_maniskill_demos"]
@@ -363,6 +364,7 @@ def ensure_maniskill_demos(
     *,
     attempt_timeout: int = 120,
     workers: int | None = None,
+    quality: str = "expert",
     progress: bool = True,
 ) -> Path:
     """Path of a ManiSkill file with ``num`` successful demonstrations of ``task``, generating only what
@@ -378,6 +380,9 @@ def ensure_maniskill_demos(
         attempt_timeout: seconds one planner attempt may take before it counts as failed.
         workers: worker processes run side by side (default: the CPU count, at most 4); a round of
             fewer than 2 * MIN_BATCH seeds uses one.
+        quality: ``mixed`` makes the expert file, then a labelled mixed-quality file beside it
+            (``....n<N>.mixed.h5``; see :mod:`l1flow_rl.experts.quality` and
+            :mod:`l1flow_rl.experts.maniskill._perturb_worker`); state tasks only.
         progress: show a tqdm bar of usable demonstrations.
 
     Example:
@@ -385,6 +390,31 @@ def ensure_maniskill_demos(
         >>> path = ensure_maniskill_demos(load_task_config("maniskill_pushcube"), 3, "data")  # doctest: +SKIP
     """
     _check_task(task, num, max_consecutive_failures)
+    check_quality(quality)
+    if quality == "mixed" and task.obs_mode != "state":
+        raise DemoGenerationError(f"task {task.name!r}: demos.quality=mixed needs obs_mode state")
+    expert = _ensure_expert(
+        task, num, data_dir, seed, max_consecutive_failures, attempt_timeout, workers, progress
+    )
+    if quality == "expert":
+        return expert
+    mixed = expert.with_name(f"{expert.stem}.mixed.h5")
+    if mixed.is_file() and mixed.with_suffix(".json").is_file():
+        return mixed
+    cmd = [sys.executable, "-m", "l1flow_rl.experts.maniskill._perturb_worker", str(expert), str(mixed)]
+    # perturbed episodes run longer than the expert's (pauses, a second grasp): twice the task's limit
+    cmd += ["--seed", str(seed), "--max-steps", str(2 * task.max_episode_steps)]
+    done = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    if done.returncode != 0:
+        raise DemoGenerationError(
+            f"{task.env_id}: making the mixed-quality set from {expert} failed:\n{done.stderr[-3000:]}"
+        )
+    return mixed
+
+
+def _ensure_expert(
+    task, num, data_dir, seed, max_consecutive_failures, attempt_timeout, workers, progress
+) -> Path:
     workers = workers or max(1, min(4, os.cpu_count() or 1))
     target = dataset_path(task, num, data_dir, seed)
     if target.is_file() and target.with_suffix(".json").is_file():

@@ -21,39 +21,46 @@ import torch
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.envs.robosuite import sim
 from l1flow_rl.envs.robosuite.pool import worker_pool
+from l1flow_rl.experts.quality import (
+    QUALITY_LABELS,
+    GripperLayout,
+    check_quality,
+    label_of,
+    mixed_kinds,
+    perturb_actions,
+)
 from l1flow_rl.experts.registry import DemoGenerationError
-from l1flow_rl.experts.robosuite.scripted import EXPERT_TASKS, make_expert
+from l1flow_rl.experts.robosuite.scripted import CLOSED, EXPERT_TASKS, OPEN, make_expert
 
-__all__ = ["dataset_path", "ensure_robosuite_demos", "run_episode"]
+__all__ = ["dataset_path", "ensure_robosuite_demos", "replay_actions", "run_episode"]
 
 
-def dataset_path(task: TaskConfig, num: int, data_dir: str | os.PathLike, seed: int = 0) -> Path:
+def dataset_path(
+    task: TaskConfig, num: int, data_dir: str | os.PathLike, seed: int = 0, quality: str = "expert"
+) -> Path:
     views = "state" if task.obs_mode == "state" else "+".join(task.cameras) + f"{task.image_size}"
+    mix = "" if quality == "expert" else f".{quality}"
     return (
         Path(data_dir)
         / "robosuite"
         / task.env_id
-        / f"{task.env_id}.{task.control}.{views}.seed{seed}.n{num}.hdf5"
+        / f"{task.env_id}.{task.control}.{views}.seed{seed}.n{num}{mix}.hdf5"
     )
 
 
-def run_episode(env, task: TaskConfig, seed: int, max_steps: int | None = None) -> dict | None:
-    """One scripted episode from the scene of ``seed``; the robomimic demo dict, or None when the
-    expert failed. The episode runs 1-3 steps past its first success (while success holds), so
-    that its last stored state (the one before the last action) is a success state too."""
-    max_steps = max_steps or task.max_episode_steps
-    sim.seed_episode(env, seed)
-    raw = env.reset()
-    rng = np.random.default_rng([seed, 7])
-    expert = make_expert(task.env_id, env, rng)
-    expert.reset()
-    extra = int(rng.integers(1, 4))
+def _record(env, seed: int, act, gave_up, max_steps: int, extra: int) -> dict:
+    """Play ``act()`` from the scene of ``seed`` (already reset) for up to ``max_steps`` steps,
+    stopping ``extra`` steps into a success that holds (so that the last stored state is a success
+    state too) or when ``gave_up()``; the robomimic demo dict with ``attrs["success"]``."""
+    raw = env._get_observations(force_update=True)
     states, actions, rewards, observations = [], [], [], []
     success, streak = False, 0
     for _ in range(max_steps):
+        action = act()
+        if action is None:
+            break
         states.append(env.sim.get_state().flatten())
         observations.append(sim.robomimic_obs(raw, []))
-        action = expert.act()
         raw, reward = sim.step(env, action)
         actions.append(action)
         rewards.append(reward)
@@ -61,15 +68,13 @@ def run_episode(env, task: TaskConfig, seed: int, max_steps: int | None = None) 
         if streak > extra:
             success = True
             break
-        if expert.failed:
+        if gave_up():
             break
-    if not success:
-        return None
     observations.append(sim.robomimic_obs(raw, []))
     obs = {k: np.stack([o[k] for o in observations[:-1]]) for k in observations[0]}
     next_obs = {k: np.stack([o[k] for o in observations[1:]]) for k in observations[0]}
     dones = np.zeros(len(actions), dtype=np.int64)
-    dones[-1] = 1
+    dones[-1] = int(success)  # a failed episode is cut short (truncated), not terminated
     return {
         "states": np.stack(states),
         "actions": np.stack(actions),
@@ -78,8 +83,32 @@ def run_episode(env, task: TaskConfig, seed: int, max_steps: int | None = None) 
         "obs": obs,
         "next_obs": next_obs,
         "model_file": env.sim.model.get_xml(),
-        "attrs": {"seed": seed},
+        "attrs": {"seed": seed, "success": success},
     }
+
+
+def run_episode(env, task: TaskConfig, seed: int, max_steps: int | None = None) -> dict | None:
+    """One scripted episode from the scene of ``seed``; the robomimic demo dict, or None when the
+    expert failed. The episode runs 1-3 steps past its first success (while success holds), so
+    that its last stored state (the one before the last action) is a success state too."""
+    sim.seed_episode(env, seed)
+    env.reset()
+    rng = np.random.default_rng([seed, 7])
+    expert = make_expert(task.env_id, env, rng)
+    expert.reset()
+    extra = int(rng.integers(1, 4))
+    demo = _record(env, seed, expert.act, lambda: expert.failed, max_steps or task.max_episode_steps, extra)
+    return demo if demo["attrs"]["success"] else None
+
+
+def replay_actions(env, task: TaskConfig, seed: int, actions: np.ndarray) -> dict:
+    """``actions`` played open loop from the scene of ``seed`` (a perturbed expert episode), up to
+    ``task.max_episode_steps``; the robomimic demo dict, successful or not (``attrs["success"]``)."""
+    sim.seed_episode(env, seed)
+    env.reset()
+    queue = iter(np.asarray(actions, dtype=np.float64))
+    extra = int(np.random.default_rng([seed, 8]).integers(1, 4))
+    return _record(env, seed, lambda: next(queue, None), lambda: False, task.max_episode_steps, extra)
 
 
 # -- workers -----------------------------------------------------------------------------------------
@@ -97,6 +126,47 @@ def _worker_episode(seed: int) -> tuple[int, dict | None, float]:
     start = time.perf_counter()
     demo = run_episode(_WORKER["env"], _WORKER["task"], seed)
     return seed, demo, time.perf_counter() - start
+
+
+def _worker_replay(index: int, seed: int, actions: np.ndarray) -> tuple[int, dict]:
+    return index, replay_actions(_WORKER["env"], _WORKER["task"], seed, actions)
+
+
+def perturb_demos(
+    task: TaskConfig, demos: list[dict], seed: int, *, workers: int = 2, progress: bool = True
+) -> list[tuple[dict, str]]:
+    """``demos`` (expert episodes) as a mixed-quality set: each keeps or changes its actions as its
+    kind says (:func:`l1flow_rl.experts.quality.mixed_kinds`), played again from its own scene;
+    (demo, label) pairs in the same order."""
+    from tqdm import tqdm  # the app extra: progress bars of the demonstration CLI
+
+    grip = GripperLayout("absolute", open=OPEN, closed=CLOSED)
+    kinds = mixed_kinds(len(demos), seed)
+    out: list[tuple[dict, str] | None] = [
+        (d, "expert") if k == "expert" else None for d, k in zip(demos, kinds)
+    ]
+    jobs = []
+    for i, (demo, kind) in enumerate(zip(demos, kinds)):
+        if kind != "expert":
+            demo_seed = int(demo["attrs"]["seed"])
+            jobs.append(
+                (
+                    i,
+                    demo_seed,
+                    perturb_actions(demo["actions"], kind, np.random.default_rng([demo_seed, 11]), grip),
+                )
+            )
+    task = dataclasses.replace(task, obs_mode="state", cameras=[])
+    with worker_pool(workers, _worker_init, (task,)) as pool:
+        futures = [pool.submit(_worker_replay, *job) for job in jobs]
+        for fut in tqdm(
+            cf.as_completed(futures), total=len(futures), desc="perturbed demos", disable=not progress
+        ):
+            i, played = fut.result()
+            label = label_of(kinds[i], bool(played["attrs"]["success"]))
+            played["attrs"] = {**played["attrs"], "perturbation": kinds[i]}
+            out[i] = (played, label)
+    return [pair for pair in out if pair is not None]
 
 
 def _longest_failure_run(results: dict[int, dict | None], first: int) -> int:
@@ -172,10 +242,15 @@ def ensure_robosuite_demos(
     seed: int = 0,
     workers: int | None = None,
     max_consecutive_failures: int = 50,
+    quality: str = "expert",
     progress: bool = True,
 ) -> Path:
     """The robomimic file of ``num`` scripted demonstrations of ``task`` under ``data_dir`` (made
-    when missing; an image task's observations are regenerated from the states with its cameras)."""
+    when missing; an image task's observations are regenerated from the states with its cameras).
+
+    ``quality="mixed"``: ``num`` episodes of mixed quality instead (see
+    :mod:`l1flow_rl.experts.quality`), each demo's label in its ``quality`` attribute and in
+    robomimic's filter keys ``mask/<label>`` (``mask/train`` holds them all)."""
     # optional dependency: the writer imports h5py
     from l1flow_rl.data.formats.robomimic_writer import RobomimicWriter
 
@@ -189,20 +264,28 @@ def ensure_robosuite_demos(
             f"task {task.name!r}: the scripted experts act with absolute OSC_POSE targets; "
             "set control: absolute"
         )
-    target = dataset_path(task, num, data_dir, seed)
+    check_quality(quality)
+    target = dataset_path(task, num, data_dir, seed, quality)
     if target.is_file():
         return target
     workers = workers or min(2, os.cpu_count() or 1)
     state_task = dataclasses.replace(task, obs_mode="state", cameras=[])
-    low_dim = dataset_path(state_task, num, data_dir, seed)
+    low_dim = dataset_path(state_task, num, data_dir, seed, quality)
     if not low_dim.is_file():
         demos, stats = generate(
             state_task, num, seed, workers=workers, max_failures=max_consecutive_failures, progress=progress
         )
+        labelled = [(d, "expert") for d in demos]
+        if quality == "mixed":
+            labelled = perturb_demos(state_task, demos, seed, workers=workers, progress=progress)
         with RobomimicWriter(low_dim, sim.env_args_for_task(state_task, cameras=[])) as writer:
-            for demo in demos:
+            for demo, label in labelled:
+                demo["attrs"] = {**demo["attrs"], "quality": label}
                 writer.add(demo)
             writer.add_mask("train", [f"demo_{i}" for i in range(num)])
+            if quality == "mixed":
+                for label in QUALITY_LABELS:
+                    writer.add_mask(label, [f"demo_{i}" for i, (_, lb) in enumerate(labelled) if lb == label])
         if progress:
             print(
                 f"{task.env_id}: {num} demos, expert success {stats['success_rate']:.2f} over "

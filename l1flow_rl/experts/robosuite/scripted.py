@@ -1,5 +1,5 @@
-"""Scripted pick-and-place experts for robosuite's Lift, Stack and PickPlaceCan, written against
-privileged simulator state (object poses from MuJoCo, the end effector from the observation).
+"""Scripted pick-and-place experts for robosuite's Lift, Stack, PickPlaceCan and NutAssemblySquare,
+written against privileged simulator state (object poses from MuJoCo, the end effector from the observation).
 
 An expert is a list of phases (move above the object, descend, close, lift, carry, release, ...).
 Each phase's target is computed from the live object poses when the phase starts, and the
@@ -55,6 +55,12 @@ class Phase:
     tol: float = 0.01
     hold: int = 0
     speed_scale: float = 1.0
+    #: a new gripper yaw goal (radians from the home pose), evaluated when the phase starts; the
+    #: phase then also waits for the commanded yaw to reach it
+    yaw: Callable[[], float] | None = None
+    #: once the command has reached the target, shift it by the end effector's remaining error
+    #: (integral action): OSC lags 1-2 cm at the edge of the reach, more than a peg's clearance
+    servo: bool = False
 
 
 class ScriptedExpert:
@@ -75,6 +81,7 @@ class ScriptedExpert:
         self._cmd_pos: np.ndarray | None = None
         self._cmd_yaw = 0.0
         self._yaw_goal = 0.0
+        self._bias = np.zeros(3)  # the servo phases' correction, added to every later command
         self._home: Rotation | None = None
         self._gripper = OPEN
         self.failed = False
@@ -125,13 +132,19 @@ class ScriptedExpert:
             if not self._started:
                 self._target, self._started = np.asarray(phase.target(), dtype=float), True
                 self._elapsed = self._held = 0
+                if phase.yaw is not None:
+                    self._yaw_goal = float(phase.yaw())
             self._gripper = phase.gripper
             step = self._target - self._cmd_pos
             dist = float(np.linalg.norm(step))
             max_step = self.speed * phase.speed_scale
             self._cmd_pos = self._cmd_pos + (step if dist <= max_step else step * max_step / dist)
             self._elapsed += 1
-            if np.linalg.norm(self.eef_pos() - self._target) < phase.tol and dist <= max_step:
+            if phase.servo and dist <= max_step:
+                error = self._target - self.eef_pos()
+                self._bias = np.clip(self._bias + np.clip(0.1 * error, -0.002, 0.002), -0.04, 0.04)
+            turned = abs(self._yaw_goal - self._cmd_yaw) < 1e-6 or phase.yaw is None
+            if np.linalg.norm(self.eef_pos() - self._target) < phase.tol and dist <= max_step and turned:
                 self._held += 1
                 if self._held > phase.hold:
                     self._phase, self._started = self._phase + 1, False
@@ -139,7 +152,7 @@ class ScriptedExpert:
                 self.failed = True
         self._cmd_yaw += float(np.clip(self._yaw_goal - self._cmd_yaw, -0.08, 0.08))
         rotation = Rotation.from_euler("z", self._cmd_yaw) * self._home
-        return np.concatenate([self._cmd_pos, canonical_rotvec(rotation), [self._gripper]])
+        return np.concatenate([self._cmd_pos + self._bias, canonical_rotvec(rotation), [self._gripper]])
 
 
 class LiftExpert(ScriptedExpert):
@@ -226,11 +239,65 @@ class CanExpert(ScriptedExpert):
         ]
 
 
+class SquareExpert(ScriptedExpert):
+    """Grasp the square nut by its handle, lift it, turn it square to the peg, carry it over the
+    square peg and lower it down the peg (robosuite's success: the nut's centre within 3 cm of the
+    peg's axis and below 5 cm above the table, the gripper away from the nut's centre)."""
+
+    def plan(self) -> list[Phase]:
+        env, rng = self.env, self.rng
+        nut = env.obj_body_id[env.nuts[env.nut_id].name]
+        handle = env.sim.model.site_name2id(env.nuts[env.nut_id].important_sites["handle"])
+        peg = np.array(env.sim.data.body_xpos[env.peg1_body_id])
+        # the fingers close across the handle (the nut's local y); at home they close along world y,
+        # so the gripper turns by the nut's yaw (the handle looks the same every pi for the fingers)
+        self.align_yaw(self.body_yaw(nut) + np.pi / 2, np.pi)
+        grasp_yaw = self._yaw_goal
+        # along the handle (away from the nut's frame) and across it, in the nut's frame
+        along, across = rng.uniform(0.002, 0.012), rng.uniform(-0.003, 0.003)
+        depth = rng.uniform(-0.002, 0.004)  # lower, the tilted hand's far finger meets the table
+        above = rng.uniform(0.05, 0.1)
+        carry_z = peg[2] + rng.uniform(0.17, 0.22)  # the peg's top is 10 cm above its centre
+        lower_speed = rng.uniform(0.3, 0.5)
+        peg_top = peg[2] + 0.1  # the peg is a 20 cm box about its centre
+        drop = rng.uniform(0.025, 0.04)
+
+        def grasp_point() -> np.ndarray:
+            yaw = self.body_yaw(nut)
+            axis, side = np.array([np.cos(yaw), np.sin(yaw), 0.0]), np.array([-np.sin(yaw), np.cos(yaw), 0.0])
+            return np.array(env.sim.data.site_xpos[handle]) + along * axis + across * side + _up(depth)
+
+        def square_yaw() -> float:
+            # the nut's yaw is turned to a multiple of pi/2 (the peg's faces), by the smallest turn
+            # that keeps the gripper within 45 deg of its home yaw
+            final = self._cmd_yaw - self.body_yaw(nut)
+            return (final + np.pi / 4) % (np.pi / 2) - np.pi / 4 + rng.uniform(-0.03, 0.03)
+
+        def over_peg(nut_z: float) -> np.ndarray:
+            offset = self.eef_pos() - self.body_pos(nut)  # where the hand holds the nut
+            return np.array([peg[0] + offset[0], peg[1] + offset[1], nut_z + offset[2]])
+
+        return [
+            Phase("above", lambda: grasp_point() + _up(above), OPEN, tol=0.02, yaw=lambda: grasp_yaw),
+            Phase("descend", grasp_point, OPEN, tol=0.008, speed_scale=0.5),
+            Phase("close", lambda: self._cmd_pos, CLOSED, tol=0.02, hold=int(rng.integers(5, 9))),
+            Phase("lift", lambda: np.array([*self._cmd_pos[:2], carry_z]), CLOSED, tol=0.03),
+            Phase("turn", lambda: self._cmd_pos, CLOSED, tol=0.03, hold=3, yaw=square_yaw),
+            Phase("over_peg", lambda: over_peg(carry_z), CLOSED, tol=0.01, servo=True),
+            Phase("settle", lambda: over_peg(carry_z), CLOSED, tol=0.004, hold=6, servo=True),
+            # released a few cm down the peg, before the hand meets the peg's top: the nut drops the rest
+            Phase("lower", lambda: over_peg(peg_top - drop), CLOSED, tol=0.015, speed_scale=lower_speed),
+            Phase("open", lambda: self._cmd_pos, OPEN, tol=0.05, hold=int(rng.integers(3, 7))),
+            Phase("retreat", lambda: self._cmd_pos + _up(0.08), OPEN, tol=0.03),
+        ]
+
+
 #: env ids the scripted experts solve
 EXPERT_TASKS: dict[str, type[ScriptedExpert]] = {
     "Lift": LiftExpert,
     "Stack": StackExpert,
     "PickPlaceCan": CanExpert,
+    "NutAssemblySquare": SquareExpert,
 }
 
 
