@@ -2,7 +2,9 @@
 
 Runs ``l1flow-rl train`` (the embedded default: ManiSkill PushCube, state, 100 demonstrations,
 L1 Flow) in a fresh data and run directory, then reports wall time (demonstrations included) as a
-ratio of the 15-minute budget and success_once against the 0.9 target.
+ratio of the 8-minute budget and success_once over at least 100 test episodes against the 0.95
+target. On a machine shared with other work the wall time is inflated: the run's CPU seconds (its
+whole process tree) and the load average are saved beside it.
 
     .venv/bin/python -m benchmarks.bench_main_job [--quick] [--out PATH] [override ...]
 
@@ -22,8 +24,9 @@ from pathlib import Path
 
 from benchmarks.common import machine_info, save_results
 
-BUDGET_S = 15 * 60
-TARGET_SUCCESS = 0.9
+BUDGET_S = 8 * 60
+TARGET_SUCCESS = 0.95
+TARGET_EPISODES = 100
 #: --quick: the main job's command on a budget that only checks the script
 QUICK = [
     "demos.num=2",
@@ -49,6 +52,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.quick:
         args.overrides = [*QUICK, *args.overrides]
+    elif not any(o.startswith("eval.episodes=") for o in args.overrides):
+        # the main job's defaults test 50 episodes; its target is stated over 100
+        args.overrides = [f"eval.episodes={TARGET_EPISODES}", *args.overrides]
     work = Path(args.workdir or tempfile.mkdtemp(prefix="l1flow-main-job-"))
     run_dir, data_dir = work / "run", work / "data"
     if args.reuse:
@@ -85,6 +91,9 @@ def _report(args: argparse.Namespace, run_dir: Path, wall: float) -> int:
         "wall_over_budget": round(wall / BUDGET_S, 3),
         "demo_seconds": summary.get("demo_seconds"),
         "train_seconds": summary.get("train_seconds"),
+        "eval_seconds": summary.get("eval_seconds"),
+        "cpu_seconds": summary.get("cpu_seconds"),
+        "run_machine": summary.get("machine"),
         "steps": summary.get("steps"),
         "success_once": result["success_once"],
         "success_at_end": result["success_at_end"],
@@ -96,7 +105,7 @@ def _report(args: argparse.Namespace, run_dir: Path, wall: float) -> int:
         "chunk_latency_ms_median": result.get("latency_ms_median"),
         "meets_targets": wall <= BUDGET_S
         and result["success_once"] >= TARGET_SUCCESS
-        and result["episodes"] >= 50,
+        and result["episodes"] >= TARGET_EPISODES,
     }
     out = save_results(args.out or f"benchmarks/results/main_job{'_quick' * args.quick}.json", figures)
     print(json.dumps(figures, indent=2))

@@ -459,8 +459,8 @@ def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
     figures = json.loads(out.read_text())
     assert figures["quick"] is True and figures["steps"] == 4 and figures["eval_episodes"] == 2
     assert 0.0 <= figures["success_once"] <= 1.0 and figures["wall_seconds"] > 0
-    assert figures["wall_over_budget"] == pytest.approx(figures["wall_seconds"] / 900, abs=1e-3)
-    assert figures["meets_targets"] is False  # 2 episodes can never meet the 50-episode target
+    assert figures["wall_over_budget"] == pytest.approx(figures["wall_seconds"] / 480, abs=1e-3)
+    assert figures["meets_targets"] is False  # 2 episodes can never meet the 100-episode target
     # --reuse reads the finished run back instead of training again
     again = tmp_path / "again.json"
     argv = ["--quick", "--reuse", "--out", str(again), "--workdir", str(tmp_path / "work")]

@@ -130,7 +130,7 @@ def test_cache_is_reused_and_generation_resumes(pushcube, monkeypatch):
         assert sorted(small) == ["traj_0", "traj_1"]
         np.testing.assert_array_equal(small["traj_1/actions"][()], big["traj_1/actions"][()])
     # leftovers of an interrupted run never count: a work directory and a batch without its attempts file
-    root = data_dir / "maniskill" / task.env_id
+    root = maniskill_demos._task_root(task, data_dir)
     chain = maniskill_demos._planned_chain(root / "planned", 0)
     next_seed = chain[-1].last + 1
     (root / ".work" / "plan_000999").mkdir(parents=True)

@@ -3,7 +3,8 @@
     python -m l1flow_rl.experts.maniskill._plan_worker --env-id PushCube-v1 --work-dir TMP \
         --first-seed 0 --num-seeds 20 --obs-mode state --control-mode pd_ee_delta_pos
 
-Stage 1 (with ``--num-seeds``) runs ManiSkill's motion-planning solution on each seed and writes the
+Stage 1 (with ``--num-seeds``) runs the motion-planning solution (ManiSkill's, or ours where
+:mod:`l1flow_rl.experts.maniskill.solutions` replaces it) on each seed and writes the
 successes to ``TMP/plan.h5`` + ``plan.json`` (ManiSkill's format, ``pd_joint_pos``); one
 ``ATTEMPT_MARK {json}`` line per seed goes to stdout for the parent's progress bar and failure count.
 The official runner (``mani_skill.examples.motionplanning.panda.run``) always starts at seed 0 and,
@@ -25,6 +26,8 @@ import sys
 import time
 from pathlib import Path
 
+from l1flow_rl.experts.maniskill.solutions import solution_for
+
 ATTEMPT_MARK = "L1FLOW_PLAN_ATTEMPT"
 READY_MARK = "L1FLOW_PLAN_READY"  # the env is up: a crash after this is the planner's, on a seed
 NO_SOLUTION_EXIT = 3
@@ -45,12 +48,12 @@ def _plan(env_id: str, work_dir: Path, first_seed: int, num_seeds: int, attempt_
     from mani_skill.examples.motionplanning.panda.run import MP_SOLUTIONS
     from mani_skill.utils.wrappers.record import RecordEpisode
 
-    if env_id not in MP_SOLUTIONS:
+    solve = solution_for(env_id)
+    if solve is None:
         print(
             f"no motion-planning solution for {env_id}; ManiSkill has {sorted(MP_SOLUTIONS)}", file=sys.stderr
         )
         return NO_SOLUTION_EXIT
-    solve = MP_SOLUTIONS[env_id]
     # The solutions plan in joint space; pd_joint_pos is what they record (the replay converts it).
     env = gym.make(
         env_id, obs_mode="none", control_mode="pd_joint_pos", render_mode="rgb_array", sim_backend="cpu"

@@ -4,9 +4,11 @@ Batches of seeds go to a worker process (:mod:`l1flow_rl.experts.maniskill._plan
 ManiSkill's motion-planning solution (it records ``pd_joint_pos``) and replays the successes with
 ManiSkill's replay tool into the task's observation and control mode, recording rewards. Under ``DATA_DIR``::
 
-    maniskill/<env_id>/planned/seeds_<a>-<b>.{h5,json,attempts.json}       planner output, any mode
-    maniskill/<env_id>/<obs>.<control>.<reward>/seeds_<a>-<b>.{h5,json}    replayed batches
-    maniskill/<env_id>/<obs>.<control>.<reward>/<env_id>.seed<s>.n<N>.{h5,json}   the dataset
+    maniskill/<env_id>[.<tag>]/planned/seeds_<a>-<b>.{h5,json,attempts.json}       planner output, any mode
+    maniskill/<env_id>[.<tag>]/<obs>.<control>.<reward>/seeds_<a>-<b>.{h5,json}    replayed batches
+    maniskill/<env_id>[.<tag>]/<obs>.<control>.<reward>/<env_id>.seed<s>.n<N>.{h5,json}   the dataset
+
+``.<tag>``: where our own solution replaces ManiSkill's (:mod:`l1flow_rl.experts.maniskill.solutions`).
 
 A batch appears under its final name only once complete (work happens in a temporary directory and
 is renamed), so an interrupted run resumes from the last finished batch. Seeds run consecutively
@@ -38,6 +40,7 @@ import h5py
 
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.experts.maniskill._plan_worker import ATTEMPT_MARK, NO_SOLUTION_EXIT, READY_MARK
+from l1flow_rl.experts.maniskill.solutions import SOLUTION_TAGS
 from l1flow_rl.experts.quality import check_quality
 from l1flow_rl.experts.registry import DemoGenerationError
 
@@ -71,11 +74,15 @@ def _mode_name(task) -> str:
     return f"{task.obs_mode}.{task.control_mode}.{task.reward_mode}"
 
 
+def _task_root(task, data_dir) -> Path:
+    """The task's cache; plans of our own solution (``solutions.SOLUTION_TAGS``) apart from ManiSkill's."""
+    tag = SOLUTION_TAGS.get(task.env_id)
+    return Path(data_dir) / "maniskill" / (f"{task.env_id}.{tag}" if tag else task.env_id)
+
+
 def dataset_path(task: TaskConfig, num: int, data_dir: str | os.PathLike, seed: int = 0) -> Path:
     """Where :func:`ensure_maniskill_demos` puts (or finds) ``num`` demonstrations of ``task``."""
-    return (
-        Path(data_dir) / "maniskill" / task.env_id / _mode_name(task) / f"{task.env_id}.seed{seed}.n{num}.h5"
-    )
+    return _task_root(task, data_dir) / _mode_name(task) / f"{task.env_id}.seed{seed}.n{num}.h5"
 
 
 def _check_task(task, num: int, max_consecutive_failures: int) -> None:
@@ -210,7 +217,7 @@ class _Generator:
 
     def __init__(self, task, data_dir, attempt_timeout: int) -> None:
         self.task, self.attempt_timeout = task, attempt_timeout
-        self.root = Path(data_dir) / "maniskill" / task.env_id
+        self.root = _task_root(task, data_dir)
         self.planned = self.root / "planned"
         self.mode_dir = self.root / _mode_name(task)
         self.tmp_root = self.root / ".work"
