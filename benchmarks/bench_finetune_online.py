@@ -52,9 +52,19 @@ def run_one(algorithm: str, args, run_dir: Path) -> list[str]:
 
 
 def read_run(run_dir: Path) -> dict:
-    history = json.loads((run_dir / "history.json").read_text())
-    summary = json.loads((run_dir / "summary.json").read_text())
-    test = json.loads((run_dir / "eval.json").read_text())
+    """A finished run's figures; a run stopped early (no eval.json) is read from its last checkpoint."""
+    stopped = not (run_dir / "eval.json").is_file()
+    if stopped:
+        from l1flow_rl.workspace.checkpoint import load_checkpoint
+
+        state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+        history = {"evals": state["evals"], "rounds": state["records"].get("rounds", [])}
+        summary = {**state["progress"], "machine": None}
+        test = {}
+    else:
+        history = json.loads((run_dir / "history.json").read_text())
+        summary = json.loads((run_dir / "summary.json").read_text())
+        test = json.loads((run_dir / "eval.json").read_text())
     val = [e for e in history["evals"] if e.get("split", "val") == "val"]
     rounds = history.get("rounds", [])
     trained = [r for r in rounds if r.get("policy") == "actor"]
@@ -64,6 +74,7 @@ def read_run(run_dir: Path) -> dict:
         return sum(values) / len(values) if values else None
 
     return {
+        "stopped_early": stopped,
         "validation": [
             {
                 "env_steps": e.get("env_steps", 0),
@@ -142,7 +153,8 @@ def main(argv: list[str] | None = None) -> int:
             name, proc = running.pop(0)
             if proc.wait() != 0:
                 print(f"{name} failed (exit {proc.returncode}); see {dirs[name]}.log")
-    results = {a: read_run(d) for a, d in dirs.items() if (d / "eval.json").is_file()}
+    readable = lambda d: (d / "eval.json").is_file() or (d / "checkpoints" / "latest.pt").is_file()  # noqa: E731
+    results = {a: read_run(d) for a, d in dirs.items() if readable(d)}
     out = Path(args.out or f"benchmarks/results/finetune_online_{args.task}_seed{args.seed}.json")
     save_results(
         out,
@@ -159,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         json.dumps(
             {
-                a: {"start": r["start_validation"], "test": r["test"]["success_once"]}
+                a: {"start": r["start_validation"], "test": r["test"].get("success_once")}
                 for a, r in results.items()
             }
         )

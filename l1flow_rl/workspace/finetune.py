@@ -153,7 +153,9 @@ def run_finetune(cfg: DictConfig) -> int:
         run.records.setdefault("rounds", [])
 
         def state() -> dict[str, Any]:
-            model = start if saved["describe_start"] else loss.actor
+            # the start is saved as the BC actor it is (DSRL's start acts through a NoiseActor, whose
+            # weights a BC config does not rebuild): best.pt of a run whose start won loads as BC
+            model = bc_actor if saved["describe_start"] else loss.actor
             return {
                 "model": model.state_dict(),
                 "ema": None,
