@@ -16,7 +16,7 @@ from torch import Tensor
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.doc_examples import CRITIC, FLOW, add_example
 from l1flow_rl.networks.critic import ChunkCritic
-from l1flow_rl.policy import ChunkPolicy
+from l1flow_rl.policy import ChunkPolicy, ExecutesChunks
 
 __all__ = ["BestOfNActor"]
 
@@ -36,7 +36,7 @@ torch.Size([3, 8, 2])
 torch.Size([3, 2])
 """,
 )
-class BestOfNActor(TensorDictModuleBase):
+class BestOfNActor(ExecutesChunks, TensorDictModuleBase):
     """Reads the observation history and writes the best of ``num_samples`` executable windows.
 
     Args:
@@ -71,10 +71,6 @@ class BestOfNActor(TensorDictModuleBase):
     @property
     def policy(self) -> ChunkPolicy:
         return self.actor.policy
-
-    @property
-    def action_steps(self) -> int:
-        return self.policy.action_steps
 
     def propose(self, obs: TensorDictBase, num_samples: int | None = None) -> Tensor:
         """N full chunks per read observation [B, To]: [B, N, H, A] in environment units (the

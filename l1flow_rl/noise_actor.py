@@ -22,7 +22,7 @@ from torchrl.modules import TanhNormal
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.networks.critic import fresh_encoder
 from l1flow_rl.normalizer import NormalizerDict
-from l1flow_rl.policy import ChunkPolicy
+from l1flow_rl.policy import ChunkPolicy, ExecutesChunks
 
 __all__ = ["NoiseActor", "NoisePolicy", "PriorNoise"]
 
@@ -86,7 +86,7 @@ class PriorNoise(nn.Module):
         return w, torch.full(shape[:1], float("nan"))
 
 
-class NoiseActor(TensorDictModuleBase):
+class NoiseActor(ExecutesChunks, TensorDictModuleBase):
     """Writes the flow's window ``"action_chunk"`` [*B, K, A] decoded (one 2-NFE call) from the steering
     noise w [*B, H, A], and ``"noise_chunk"`` [*B, K, H, A]: w once per executed step, so that
     TorchRL's ``MultiStepActorWrapper`` hands every step of the chunk its ``"noise"`` (and the replay
@@ -138,10 +138,6 @@ class NoiseActor(TensorDictModuleBase):
     @property
     def policy(self) -> ChunkPolicy:
         return self.flow.policy
-
-    @property
-    def action_steps(self) -> int:
-        return self.policy.action_steps
 
     @torch.no_grad()
     def decode(self, obs: TensorDictBase, noise: Tensor) -> Tensor:

@@ -16,7 +16,7 @@ from torch import Tensor, nn
 
 from l1flow_rl.networks.critic import fresh_encoder
 from l1flow_rl.normalizer import Normalizer, NormalizerDict
-from l1flow_rl.policy import ChunkPolicy
+from l1flow_rl.policy import ChunkPolicy, ExecutesChunks
 
 __all__ = ["OneStepActor", "OneStepPolicy"]
 
@@ -74,7 +74,7 @@ class OneStepPolicy(nn.Module):
         return window.reshape(*batch, *window.shape[1:])
 
 
-class OneStepActor(TensorDictModule):
+class OneStepActor(ExecutesChunks, TensorDictModule):
     """mu as a TensorDictModule: ``"observation"`` -> ``"action_chunk"`` [*B, K, A] (one network call).
 
     Examples:
@@ -102,7 +102,3 @@ class OneStepActor(TensorDictModule):
     @property
     def policy(self) -> OneStepPolicy:
         return self.module  # type: ignore[return-value]
-
-    @property
-    def action_steps(self) -> int:
-        return self.policy.action_steps

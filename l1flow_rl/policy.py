@@ -20,6 +20,15 @@ from l1flow_rl.observations import STATE_KEY, read_observations
 __all__ = ["STATE_KEY", "ChunkPolicy"]
 
 
+class ExecutesChunks:
+    """Mixin for the acting modules over a policy (``self.policy``): ``action_steps``, how many steps of
+    each chunk they execute (``MultiStepActorWrapper``'s ``n_steps``)."""
+
+    @property
+    def action_steps(self) -> int:
+        return self.policy.action_steps  # type: ignore[attr-defined]
+
+
 class ChunkPolicy(nn.Module):
     """Everything needed to go from an observation history to an action chunk.
 

@@ -34,8 +34,9 @@ class RegressionLoss(ChunkLossBase):
         reduction: str = "mean",
         mask_padding: bool = False,
     ) -> None:
+        loss_type = check_loss_type(loss_type)  # before the network is taken over
         super().__init__(actor_network, reduction=reduction, mask_padding=mask_padding)
-        self.loss_type = check_loss_type(loss_type)
+        self.loss_type = loss_type
 
     def _elementwise_loss(
         self, cond: Tensor, x1: Tensor, valid: Tensor | None

@@ -20,15 +20,8 @@ import h5py
 import torch
 from tensordict import TensorDict
 
-from l1flow_rl.data.episodes import (
-    EpisodeDataError,
-    as_tensor,
-    assemble_episode,
-    check_finite,
-    check_steps,
-    to_uint8_image,
-    where,
-)
+from l1flow_rl.data import episodes
+from l1flow_rl.data.episodes import EpisodeDataError, where
 from l1flow_rl.data.formats.base import EpisodeFile, open_h5
 from l1flow_rl.data.metadata import control_of
 from l1flow_rl.envs.maniskill.obs import flatten_maniskill_obs
@@ -133,16 +126,18 @@ class ManiSkillFile(EpisodeFile):
         return group[key]
 
     def _read(self, episode: int, key: str) -> torch.Tensor:
-        return as_tensor(self._dataset(episode, key)[()], self.path, episode, f"traj_{episode}/{key}")
+        return episodes.as_tensor(
+            self._dataset(episode, key)[()], self.path, episode, f"traj_{episode}/{key}"
+        )
 
     def _observation(self, episode: int, steps: int):
         node = self._dataset(episode, "obs")
         key = f"traj_{episode}/obs"
         if isinstance(node, h5py.Dataset):
-            full = as_tensor(node[()], self.path, episode, key)
-            obs = check_steps(full, steps, self.path, episode, key, extra=1)
+            full = episodes.as_tensor(node[()], self.path, episode, key)
+            obs = episodes.check_steps(full, steps, self.path, episode, key, extra=1)
             final = full[steps] if full.shape[0] > steps else None
-            check_finite(full.float(), self.path, episode, key)
+            episodes.check_finite(full.float(), self.path, episode, key)
             return obs.float(), None if final is None else final.float()
         wanted = {g: node[g] for g in ("agent", "extra", "sensor_data") if g in node}
         raw = _read_group(wanted, self.path, episode, key)
@@ -151,18 +146,18 @@ class ManiSkillFile(EpisodeFile):
         except (KeyError, TypeError, ValueError) as err:
             raise EpisodeDataError(f"{where(self.path, episode, key)}: {err}") from err
         full_state = flat["state"]
-        state = check_steps(full_state, steps, self.path, episode, f"{key}/agent+extra", extra=1)
-        check_finite(full_state, self.path, episode, f"{key}/agent+extra")
+        state = episodes.check_steps(full_state, steps, self.path, episode, f"{key}/agent+extra", extra=1)
+        episodes.check_finite(full_state, self.path, episode, f"{key}/agent+extra")
         has_final = full_state.shape[0] > steps
         if "rgb" not in flat:
             return state, full_state[steps] if has_final else None
-        check_steps(flat["rgb"], steps, self.path, episode, f"{key}/sensor_data", extra=1)
+        episodes.check_steps(flat["rgb"], steps, self.path, episode, f"{key}/sensor_data", extra=1)
         if (flat["rgb"].shape[0] > steps) != has_final:
             raise EpisodeDataError(
                 f"{where(self.path, episode, key)}: the camera has {flat['rgb'].shape[0]} frames but the "
                 f"state {full_state.shape[0]} rows"
             )
-        rgb = to_uint8_image(flat["rgb"], self.path, episode, key, channels_last=False)
+        rgb = episodes.to_uint8_image(flat["rgb"], self.path, episode, key, channels_last=False)
         obs = {"state": state, "rgb": rgb[:steps]}
         return obs, {"state": full_state[steps], "rgb": rgb[steps]} if has_final else None
 
@@ -174,24 +169,28 @@ class ManiSkillFile(EpisodeFile):
                 f"{where(self.path, episode, f'traj_{episode}/actions')}: expected [T >= 1, A], got "
                 f"{tuple(actions.shape)}"
             )
-        check_finite(actions, self.path, episode, f"traj_{episode}/actions")
+        episodes.check_finite(actions, self.path, episode, f"traj_{episode}/actions")
         observation, final = self._observation(episode, steps)
         group = self.h5[f"traj_{episode}"]
         flags = {}
         for name in ("success", "fail", "terminated"):
             if name in group:
-                flags[name] = check_steps(self._read(episode, name).bool(), steps, self.path, episode, name)
+                flags[name] = episodes.check_steps(
+                    self._read(episode, name).bool(), steps, self.path, episode, name
+                )
         sparse = torch.zeros(steps)
         if "success" in flags:
             sparse = flags["success"].float() - (flags["fail"].float() if "fail" in flags else 0.0)
         reward = None
         if "rewards" in group:
-            reward = check_steps(self._read(episode, "rewards"), steps, self.path, episode, "rewards")
-            check_finite(reward, self.path, episode, f"traj_{episode}/rewards")
+            reward = episodes.check_steps(
+                self._read(episode, "rewards"), steps, self.path, episode, "rewards"
+            )
+            episodes.check_finite(reward, self.path, episode, f"traj_{episode}/rewards")
         extra = {"sparse_reward": sparse}
         if "success" in flags:
             extra["success"] = flags["success"]
-        return assemble_episode(
+        return episodes.assemble_episode(
             episode,
             observation,
             actions,
@@ -213,5 +212,5 @@ def _read_group(group, source, episode, key) -> dict:
         elif name in ("depth", "segmentation", "seg"):
             continue  # only rgb is used; skip decompressing the other image streams
         else:
-            out[name] = as_tensor(node[()], source, episode, f"{key}/{name}").numpy()
+            out[name] = episodes.as_tensor(node[()], source, episode, f"{key}/{name}").numpy()
     return out

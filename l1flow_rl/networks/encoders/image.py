@@ -62,8 +62,6 @@ class CameraEncoder(nn.Module):
         group_size: int = 16,
         in_channels: int = 3,
     ) -> None:
-        super().__init__()
-        self.trunk = ResNet18GN(num_classes=None, group_size=group_size, in_channels=in_channels)
         h, w = (_trunk_map_size(s) for s in crop)
         if h * w < 2:
             # a softmax over one position is constant: the features would ignore the image
@@ -71,6 +69,8 @@ class CameraEncoder(nn.Module):
                 f"a {crop[0]}x{crop[1]} crop leaves a 1x1 ResNet-18 feature map, on which the spatial "
                 "softmax cannot see the image; crops need a side of at least 33 pixels"
             )
+        super().__init__()  # the crop is checked before the trunk is built
+        self.trunk = ResNet18GN(num_classes=None, group_size=group_size, in_channels=in_channels)
         self.pool = SpatialSoftmax(ResNet18GN.out_channels, h, w, num_keypoints=num_keypoints)
         self.proj = nn.Linear(self.pool.output_dim, feature_dim)
         self.feature_dim = feature_dim
