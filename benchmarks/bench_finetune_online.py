@@ -1,8 +1,10 @@
 """Online fine-tuning from one BC checkpoint: each algorithm's preset (``configs/finetune/``), one run each,
-then success against env steps and the cost figures of every run in one JSON and one figure.
+then success against env steps (mean and spread over seeds), the control arms' test figures and the
+cost figures of every run in one JSON and one figure per task.
 
     .venv/bin/python -m benchmarks.bench_finetune_online --checkpoint runs/bc/checkpoints/best.pt \\
-        --task maniskill_pushcube --steps 15000 --jobs 3
+        --task maniskill_pickcube --algorithms dsrl --seeds 0 1 2 --steps 100000 \\
+        --control bc_start=runs/bc continued_bc=runs/bc_longer
 
 The runs are ``l1flow-rl finetune finetune=<algorithm> ...`` with the preset's defaults, except the
 per-algorithm budget overrides in :data:`CPU_BUDGET` (each says why: what the 2-core cost figures of
@@ -26,12 +28,12 @@ CPU_BUDGET: dict[str, list[str]] = {
     "qc": ["finetune.qc.num_samples=8", "online.updates_per_step=0.05"],
     # an update takes 0.77 s (BC + the 2-NFE teacher): 1 update per 4 env steps
     "fql": ["online.updates_per_step=0.25"],
-    # an update takes 0.09 s (no flow call): the preset's UTD 1
+    # an update takes 0.09 s (no flow call): the preset's 0.25 updates per env step (2 per chunk decision)
     "dsrl": [],
 }
 
 
-def run_one(algorithm: str, args, run_dir: Path) -> list[str]:
+def run_one(algorithm: str, seed: int, args, run_dir: Path) -> list[str]:
     return [
         sys.executable,
         "-m",
@@ -45,10 +47,23 @@ def run_one(algorithm: str, args, run_dir: Path) -> list[str]:
         f"online.eval_every={args.eval_every}",
         f"eval.episodes={args.test_episodes}",
         f"eval.val_episodes={args.val_episodes}",
-        f"seed={args.seed}",
+        f"seed={seed}",
         *CPU_BUDGET[algorithm],
         *args.override,
     ]
+
+
+def read_control(run_dir: Path) -> dict:
+    """A control arm's test figure: a ``l1flow-rl train`` run (the BC start, continued BC) or a finished
+    fine-tuning run, read from its ``eval.json``."""
+    test = json.loads((run_dir / "eval.json").read_text())
+    summary = json.loads((run_dir / "summary.json").read_text())
+    return {
+        "run_dir": str(run_dir),
+        "test": {k: test.get(k) for k in ("success_once", "success_at_end", "episodes", "ci95", "selection")},
+        "steps": summary.get("steps"),
+        "cpu_seconds": summary.get("cpu_seconds"),
+    }
 
 
 def read_run(run_dir: Path) -> dict:
@@ -97,27 +112,56 @@ def read_run(run_dir: Path) -> dict:
     }
 
 
-def plot(results: dict, task: str, out: Path) -> None:
+def aggregate(per_seed: dict[int, dict]) -> dict:
+    """Mean and spread over seeds: the test figure, and validation success at each env step that every
+    seed reached."""
+    tests = [
+        r["test"]["success_once"] for r in per_seed.values() if r["test"].get("success_once") is not None
+    ]
+    curves = [{v["env_steps"]: v["success_once"] for v in r["validation"]} for r in per_seed.values()]
+    common = sorted(set.intersection(*(set(c) for c in curves))) if curves else []
+    return {
+        "seeds": sorted(per_seed),
+        "test_mean": sum(tests) / len(tests) if tests else None,
+        "test_min": min(tests) if tests else None,
+        "test_max": max(tests) if tests else None,
+        "curve": [
+            {
+                "env_steps": x,
+                "mean": sum(c[x] for c in curves) / len(curves),
+                "min": min(c[x] for c in curves),
+                "max": max(c[x] for c in curves),
+            }
+            for x in common
+        ],
+    }
+
+
+def plot(data: dict, out: Path) -> None:
+    """Validation success against env steps per algorithm (mean over seeds, min-max band), the control
+    arms' test figures as horizontal lines."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.5, 4))
-    for name, r in results.items():
-        val = r["validation"]
-        ax.plot(
-            [v["env_steps"] for v in val],
-            [v["success_once"] for v in val],
-            "o-",
-            label=f"{name} (validation)",
+    for name, algo in data["algorithms"].items():
+        curve = algo["aggregate"]["curve"]
+        x = [c["env_steps"] for c in curve]
+        (line,) = ax.plot(x, [c["mean"] for c in curve], "o-", label=f"{name} ({len(algo['runs'])} seeds)")
+        ax.fill_between(
+            x, [c["min"] for c in curve], [c["max"] for c in curve], alpha=0.2, color=line.get_color()
         )
+    for k, (name, control) in enumerate(data["controls"].items()):
+        value = control["test"]["success_once"]
+        ax.axhline(value, ls="--", lw=1, color=f"C{k + 5}", label=f"{name} (test {value:.2f})")
     ax.set_xlabel("environment steps")
-    ax.set_ylabel("success rate")
+    ax.set_ylabel("validation success_once")
     ax.set_ylim(-0.05, 1.05)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(f"online fine-tuning from one BC start, {task} (1 seed)")
+    ax.set_title(f"online fine-tuning from one BC start, {data['task']}")
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
@@ -126,56 +170,72 @@ def plot(results: dict, task: str, out: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", required=True)
-    parser.add_argument("--task", default="maniskill_pushcube")
+    parser.add_argument("--task", default="maniskill_pickcube")
     parser.add_argument("--algorithms", nargs="+", default=list(CPU_BUDGET))
-    parser.add_argument("--steps", type=int, default=15000)
-    parser.add_argument("--eval-every", type=int, default=5000)
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0])
+    parser.add_argument("--steps", type=int, default=100_000)
+    parser.add_argument("--eval-every", type=int, default=20_000)
     parser.add_argument("--val-episodes", type=int, default=50)
     parser.add_argument("--test-episodes", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--control",
+        nargs="*",
+        default=[],
+        metavar="NAME=RUN_DIR",
+        help="control arms read from finished runs' eval.json (the BC start, continued BC, ...)",
+    )
     parser.add_argument("--jobs", type=int, default=1, help="runs at once")
     parser.add_argument("--root", default="runs/bench_finetune_online")
     parser.add_argument("--override", nargs="*", default=[])
     parser.add_argument("--collect-only", action="store_true")
     parser.add_argument("--out", default=None)
     args = parser.parse_args(argv)
+    controls = {}
+    for item in args.control:
+        name, sep, run_dir = item.partition("=")
+        if not sep or not (Path(run_dir) / "eval.json").is_file():
+            parser.error(f"--control {item!r}: expected NAME=RUN_DIR of a finished run (with eval.json)")
+        controls[name] = read_control(Path(run_dir))
     root = Path(args.root)
-    dirs = {a: root / f"{args.task}_{a}_seed{args.seed}" for a in args.algorithms}
+    dirs = {(a, s): root / f"{args.task}_{a}_seed{s}" for a in args.algorithms for s in args.seeds}
     if not args.collect_only:
         pending = list(dirs.items())
-        running: list[tuple[str, subprocess.Popen]] = []
+        running: list[tuple[tuple[str, int], subprocess.Popen]] = []
         while pending or running:
             while pending and len(running) < args.jobs:
-                name, run_dir = pending.pop(0)
+                (name, seed), run_dir = pending.pop(0)
                 run_dir.parent.mkdir(parents=True, exist_ok=True)
                 log = open(run_dir.parent / f"{run_dir.name}.log", "w")  # noqa: SIM115 (closed with the process)
-                running.append((name, subprocess.Popen(run_one(name, args, run_dir), stdout=log, stderr=log)))
-            name, proc = running.pop(0)
+                cmd = run_one(name, seed, args, run_dir)
+                running.append(((name, seed), subprocess.Popen(cmd, stdout=log, stderr=log)))
+            key, proc = running.pop(0)
             if proc.wait() != 0:
-                print(f"{name} failed (exit {proc.returncode}); see {dirs[name]}.log")
+                print(f"{key} failed (exit {proc.returncode}); see {dirs[key]}.log")
     readable = lambda d: (d / "eval.json").is_file() or (d / "checkpoints" / "latest.pt").is_file()  # noqa: E731
-    results = {a: read_run(d) for a, d in dirs.items() if readable(d)}
-    out = Path(args.out or f"benchmarks/results/finetune_online_{args.task}_seed{args.seed}.json")
-    save_results(
-        out,
-        {
-            "task": args.task,
-            "checkpoint": str(args.checkpoint),
-            "online_steps": args.steps,
-            "budget_overrides": {a: CPU_BUDGET[a] + args.override for a in args.algorithms},
-            "machine": machine_info("cpu"),
-            "runs": results,
-        },
-    )
-    plot(results, args.task, out.with_suffix(".png"))
-    print(
-        json.dumps(
-            {
-                a: {"start": r["start_validation"], "test": r["test"].get("success_once")}
-                for a, r in results.items()
+    algorithms = {}
+    for a in args.algorithms:
+        runs = {s: read_run(dirs[(a, s)]) for s in args.seeds if readable(dirs[(a, s)])}
+        if runs:
+            algorithms[a] = {
+                "budget_overrides": CPU_BUDGET[a] + args.override,
+                "runs": {str(s): r for s, r in runs.items()},
+                "aggregate": aggregate(runs),
             }
-        )
-    )
+    out = Path(args.out or f"benchmarks/results/finetune_online_{args.task}.json")
+    data = {
+        "task": args.task,
+        "checkpoint": str(args.checkpoint),
+        "online_steps": args.steps,
+        "eval_every": args.eval_every,
+        "val_episodes": args.val_episodes,
+        "test_episodes": args.test_episodes,
+        "machine": machine_info("cpu"),
+        "controls": controls,
+        "algorithms": algorithms,
+    }
+    save_results(out, data)
+    plot(data, out.with_suffix(".png"))
+    print(json.dumps({a: v["aggregate"]["test_mean"] for a, v in algorithms.items()}))
     return 0
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.export_report import render_export_latency
-from benchmarks.finetune_report import render_finetune_cost
+from benchmarks.finetune_report import render_finetune_cost, render_finetune_online
 from benchmarks.sweep import convergence_steps
 from l1flow_rl.workspace.run_clock import CPU_SCOPE
 
@@ -548,6 +548,11 @@ GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
         (r"export_latency\.json", "Deployable policy: exported program and ONNX", render_export_latency),
     ],
     "Fine-tuning": [
+        (
+            r"finetune_online_.*\.json",
+            "Online fine-tuning: success against env steps",
+            render_finetune_online,
+        ),
         (r"finetune_cost_.*\.json", "Fine-tuning: cost of an update and of acting", render_finetune_cost),
         (
             r"flow_q_.*\.json",

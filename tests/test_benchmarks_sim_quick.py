@@ -12,7 +12,7 @@ from benchmarks import report
 from l1flow_rl.config import load_task_config
 
 PUSHT_HINT = "needs gym-pusht: pip install 'l1flow-rl[pusht]'"
-ROBOSUITE_TASKS = ["robosuite_lift", "robosuite_stack", "robosuite_can"]
+ROBOSUITE_TASKS = ["robosuite_lift", "robosuite_stack", "robosuite_can", "robosuite_square"]
 
 
 def _load(path) -> dict:

@@ -224,3 +224,33 @@ def test_image_observations_get_their_final_frame():
         batch["next", "observation", "state"][:, :, 0].long(), steps + 100 * batch["episode"].unsqueeze(1)
     )
     assert (batch["step"].unsqueeze(1) + 3 >= lengths).any()  # windows that read the final frame were drawn
+
+
+@pytest.mark.parametrize("writable", [False, True])
+def test_an_anchor_key_draws_windows_only_where_a_chunk_starts(writable):
+    # MultiStepActorWrapper's counter: 1, 2, 3, 1, 2, 3, ... from each episode's first step
+    eps = make_episodes(lengths=(7, 10), terminated=(True, False))
+    counter = torch.cat([torch.arange(7) % 3 + 1, torch.arange(10) % 3 + 1])[:, None]
+    eps.set("counter", counter)
+    kwargs = dict(obs_horizon=2, pred_horizon=8, batch_size=512, rl_horizon=3, gamma=GAMMA)
+    if writable:
+        keys = ("episode", "step", "observation", "action", "next", "counter")
+        rb = make_chunk_buffer(None, capacity=64, keys=keys, anchor_key="counter", **kwargs)
+        rb.extend(eps)
+    else:
+        rb = make_chunk_buffer(eps, anchor_key="counter", **kwargs)
+    batch = rb.sample()
+    assert (batch["counter"] == 1).all()
+    assert set(batch["step"].tolist()) == {0, 3, 6, 9}  # every chunk start of both episodes, nothing else
+    # the windows read what an unanchored buffer reads at the same step
+    plain = make_chunk_buffer(eps, **kwargs).sample()
+    for step in (0, 3, 6):
+        a = batch[(batch["episode"] == 0) & (batch["step"] == step)][0]
+        b = plain[(plain["episode"] == 0) & (plain["step"] == step)][0]
+        torch.testing.assert_close(a["next", "reward"], b["next", "reward"])
+        torch.testing.assert_close(a["next", "observation"], b["next", "observation"])
+
+
+def test_an_anchor_key_the_data_lack_is_named():
+    with pytest.raises(EpisodeDataError, match=r"hand\.h5: anchor_key='counter' names no stored entry"):
+        make_chunk_buffer(make_episodes(), obs_horizon=2, pred_horizon=8, anchor_key="counter")

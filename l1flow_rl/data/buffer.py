@@ -133,6 +133,7 @@ def make_chunk_buffer(
     storage_dir: str | os.PathLike | None = None,
     prefetch: int | None = None,
     source: str | None = None,
+    anchor_key: NestedKey | None = None,
 ) -> TensorDictReplayBuffer:
     """A replay buffer whose ``sample()`` returns chunk windows with Diffusion Policy's edge padding.
 
@@ -172,6 +173,8 @@ def make_chunk_buffer(
             ``load_episodes(memmap_dir=...)`` are used in place and others go to a temporary directory.
         prefetch: batches prepared ahead by background threads.
         source: a name for the data in error messages (default: the file the episodes came from).
+        anchor_key: anchor windows only at rows where this stored entry equals 1 (see
+            :class:`~l1flow_rl.data.chunks.ChunkLayout`); None: at every row.
 
     Example:
         >>> import torch
@@ -217,6 +220,7 @@ def make_chunk_buffer(
         rl_horizon=rl_horizon,
         gamma=gamma,
         reward_key=reward_key,
+        anchor_key=anchor_key,
         source=name,
     )
     generator = torch.Generator().manual_seed(seed)

@@ -62,6 +62,9 @@ class ChunkLayout:
             H - To + 1 so that ``action_chunk[:, To-1 : To-1+h]`` lies inside the chunk.
         gamma: the discount of the chunk return.
         reward_key: the stored per-step reward the chunk return sums.
+        anchor_key: a stored per-step entry; where given, only rows where it equals 1 are window
+            anchors (DSRL: ``MultiStepActorWrapper``'s ``"counter"``, 1 at a chunk's first step, the
+            only steps whose stored noise describes the actions from there on). None: every row.
         source: a name for the data in error messages (a file path).
     """
 
@@ -77,6 +80,7 @@ class ChunkLayout:
     action_key: NestedKey = "action"
     chunk_key: NestedKey = "action_chunk"
     pad_key: NestedKey = "action_is_pad"
+    anchor_key: NestedKey | None = None
     source: str = field(default="episodes", compare=False)
 
     def __post_init__(self) -> None:
@@ -178,6 +182,8 @@ class ChunkWindowSampler(Sampler):
                 # the chunk's last row t-To+H may lie at most max_pad_after rows past the episode's last row
                 last_needed = rows - self.layout.obs_horizon + self.layout.pred_horizon
                 valid = last_needed - (end - 1) <= self.layout.max_pad_after
+            if self.layout.anchor_key is not None:
+                valid &= self._anchor_rows(data, valid.shape[0])
             if alive is None:
                 self._check_every_episode_has_windows(data.get("episode"), start, valid)
             else:
@@ -188,6 +194,16 @@ class ChunkWindowSampler(Sampler):
                 raise EpisodeDataError(f"{self.layout.source}: no episode is long enough to give a window")
             self._cache = (key, start, end, anchors)
         return self._cache[1], self._cache[2], self._cache[3]
+
+    def _anchor_rows(self, data: TensorDictBase, n: int) -> Tensor:
+        key = self.layout.anchor_key
+        entry = data.get(key, default=None)
+        if entry is None:
+            raise EpisodeDataError(
+                f"{self.layout.source}: anchor_key={key!r} names no stored entry "
+                f"(has {sorted(map(str, data.keys(True, True)))})"
+            )
+        return (entry.reshape(entry.shape[0], -1)[:, 0] == 1)[:n]
 
     def _check_every_episode_has_windows(self, episode: Tensor, start: Tensor, valid: Tensor) -> None:
         starts = start.unique()

@@ -48,8 +48,10 @@ class FinetuneAlgorithm:
     """``build(flow, finetune_cfg)`` -> the loss (its ``actor`` acts); ``start_actor(loss)``: the BC
     policy in the form that writes what the online buffer stores (the warm-up steps' actor);
     ``settings``: the dataclass of the algorithm's own block ``finetune.<name>``; ``online_keys``:
-    per-step entries the online buffer keeps beside the core ones; ``uses_offline_data``: False where
-    the batches need entries demonstrations lack (DSRL's noise)."""
+    per-step entries the online buffer keeps beside the core ones; ``online_anchor_key``: where set,
+    online windows start only at rows where that entry is 1 (DSRL: chunk starts, the only windows
+    its critic can value); ``uses_offline_data``: False where the batches need entries
+    demonstrations lack (DSRL's noise)."""
 
     name: str
     loss_cls: type[ChunkCriticLoss]
@@ -57,6 +59,7 @@ class FinetuneAlgorithm:
     build: Callable[[L1FlowActor, DictConfig], ChunkCriticLoss]
     start_actor: Callable[[ChunkCriticLoss], nn.Module]
     online_keys: tuple[str, ...] = ()
+    online_anchor_key: str | None = None
     uses_offline_data: bool = True
 
     def check(self, cfg: DictConfig) -> list[str]:
@@ -170,6 +173,8 @@ register_finetune_algorithm(
         lambda loss: loss.actor.prior(),
         # the chunk's noise at each step, and the wrapper's step count (1 where a chunk starts)
         online_keys=("noise", "counter"),
+        # sampling every step gave 1 valid window in 8 (valid_fraction 0.10-0.12 on PushCube)
+        online_anchor_key="counter",
         uses_offline_data=False,
     )
 )

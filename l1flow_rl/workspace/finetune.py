@@ -146,7 +146,12 @@ def run_finetune(cfg: DictConfig) -> int:
         optimizer = torch.optim.Adam([p for p in loss.parameters() if p.requires_grad], lr=float(fcfg.lr))
         target_update = SoftUpdate(loss, tau=float(fcfg.tau))
         buffers = RLBuffers(
-            cfg, episodes, loss.rl_horizon, seed=int(cfg.seed), online_keys=algorithm.online_keys
+            cfg,
+            episodes,
+            loss.rl_horizon,
+            seed=int(cfg.seed),
+            online_keys=algorithm.online_keys,
+            online_anchor_key=algorithm.online_anchor_key,
         )
         progress = {"offline_updates": 0, "online_updates": 0, "env_steps": 0, "rounds": 0, "started": False}
         saved = {"buffer": None, "describe_start": False}

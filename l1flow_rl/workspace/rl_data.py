@@ -70,6 +70,8 @@ class RLBuffers:
         seed: seeds the buffers' generators.
         online_keys: per-step entries the online buffer keeps beside the core ones (the
             algorithm's, e.g. DSRL's noise).
+        online_anchor_key: online windows start only where this stored entry is 1 (DSRL's chunk
+            starts); None: at every step.
     """
 
     def __init__(
@@ -79,6 +81,7 @@ class RLBuffers:
         rl_horizon: int,
         seed: int,
         online_keys: tuple[str, ...] = (),
+        online_anchor_key: str | None = None,
     ) -> None:
         ocfg = cfg.online
         if not 0.0 <= ocfg.offline_fraction < 1.0:
@@ -105,6 +108,9 @@ class RLBuffers:
             keys=CORE_KEYS,  # demonstrations and online episodes share one set of entries
         )
         online = (*CORE_KEYS, *online_keys)
+        if online_anchor_key is not None and online_anchor_key not in online:
+            raise ValueError(f"online_anchor_key={online_anchor_key!r} is not among the stored {online}")
+        anchored = {"anchor_key": online_anchor_key}
         if self.mixing == "seed":
             if online_keys:
                 raise ValueError(
@@ -122,7 +128,11 @@ class RLBuffers:
             common["batch_size"] = None
             self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
             self.online = make_chunk_buffer(
-                None, seed=seed + 1, capacity=max(online_capacity, 1), **{**common, "keys": online}
+                None,
+                seed=seed + 1,
+                capacity=max(online_capacity, 1),
+                **{**common, "keys": online},
+                **anchored,
             )
             self.mixed = ChunkOfflineToOnlineBuffer(
                 self.offline,
@@ -133,7 +143,11 @@ class RLBuffers:
         else:  # online data only
             self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
             self.online = make_chunk_buffer(
-                None, seed=seed + 1, capacity=max(online_capacity, 1), **{**common, "keys": online}
+                None,
+                seed=seed + 1,
+                capacity=max(online_capacity, 1),
+                **{**common, "keys": online},
+                **anchored,
             )
             self.mixed = self.online
         self.batch_size = int(cfg.finetune.batch_size)
