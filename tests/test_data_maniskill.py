@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 
 import h5py
 import numpy as np
@@ -122,10 +121,9 @@ def test_cache_is_reused_and_generation_resumes(pushcube, monkeypatch):
     path, data_dir, task = pushcube
     with monkeypatch.context() as patch:
         patch.setattr(maniskill_demos, "_Worker", _NoWorker)
-        start = time.perf_counter()
+        # _NoWorker fails if any planning starts: both calls are served by the cache alone
         assert ensure_demos(task, 3, data_dir, progress=False) == path
         fewer = ensure_demos(task, 2, data_dir, progress=False)  # made from the cached batches
-        assert time.perf_counter() - start < 5
     with h5py.File(fewer) as small, h5py.File(path) as big:
         assert sorted(small) == ["traj_0", "traj_1"]
         np.testing.assert_array_equal(small["traj_1/actions"][()], big["traj_1/actions"][()])
@@ -160,13 +158,11 @@ def test_cli_prints_the_dataset_path(pushcube, capsys):
 def test_a_planner_that_always_fails_ends_with_a_clear_error(tmp_path):
     # DrawTriangle's solution is broken in mani-skill 3.0.1: every seed fails
     task = TaskConfig(name="drawtriangle", env_id="DrawTriangle-v1", reward_mode="sparse")
-    start = time.perf_counter()
     with pytest.raises(
         DemoGenerationError, match=r"DrawTriangle-v1: 3 seeds in a row failed \(seeds 0\.\.2"
     ) as err:
         ensure_demos(task, 2, tmp_path, max_consecutive_failures=3, progress=False)
     assert "0/2 demonstrations made" in str(err.value) and "TypeError" in str(err.value)
-    assert time.perf_counter() - start < 120
 
 
 def test_non_maniskill_task_is_refused(tmp_path):
