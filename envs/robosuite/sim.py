@@ -317,7 +317,21 @@ def restore_state(env, state: np.ndarray, model_xml: str | None = None) -> dict:
     env.sim.forward()
     if hasattr(env, "update_state"):
         env.update_state()  # e.g. the nut tasks' site bookkeeping
-    return env._get_observations(force_update=True)
+    return _read_observations(env)
+
+
+def _read_observations(env) -> dict:
+    """``env._get_observations(force_update=True)`` that leaves robosuite's sampling clocks alone.
+
+    A forced read advances every observable's clock by one substep, as a simulated substep does;
+    after it, each later ``env.step`` samples its observation that many substeps before the step
+    ends (a state the file does not store). ``env.reset()`` leaves the clocks so that each step
+    samples at its last substep, and so does this read."""
+    clocks = [(o, o._time_since_last_sample, o._sampled) for o in env._observables.values()]
+    raw = env._get_observations(force_update=True)
+    for observable, since, sampled in clocks:
+        observable._time_since_last_sample, observable._sampled = since, sampled
+    return raw
 
 
 def observation_arrays(

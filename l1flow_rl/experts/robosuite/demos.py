@@ -48,11 +48,15 @@ def dataset_path(
     )
 
 
-def _record(env, seed: int, act, gave_up, max_steps: int, extra: int) -> dict:
-    """Play ``act()`` from the scene of ``seed`` (already reset) for up to ``max_steps`` steps,
-    stopping ``extra`` steps into a success that holds (so that the last stored state is a success
-    state too) or when ``gave_up()``; the robomimic demo dict with ``attrs["success"]``."""
-    raw = env._get_observations(force_update=True)
+def _record(env, raw: dict, seed: int, act, gave_up, max_steps: int, extra: int) -> dict:
+    """Play ``act()`` from the scene of ``seed`` (``raw``: the observation ``env.reset()`` returned)
+    for up to ``max_steps`` steps, stopping ``extra`` steps into a success that holds (so that the
+    last stored state is a success state too) or when ``gave_up()``; the robomimic demo dict with
+    ``attrs["success"]``.
+
+    ``raw`` must be reset's own observation: another forced read here would advance robosuite's
+    observable sampling clocks by one substep, so that every step's observation would be sampled a
+    substep before the step ends and no longer equal the one regenerated from the stored state."""
     states, actions, rewards, observations = [], [], [], []
     success, streak = False, 0
     for _ in range(max_steps):
@@ -92,12 +96,14 @@ def run_episode(env, task: TaskConfig, seed: int, max_steps: int | None = None) 
     expert failed. The episode runs 1-3 steps past its first success (while success holds), so
     that its last stored state (the one before the last action) is a success state too."""
     sim.seed_episode(env, seed)
-    env.reset()
+    raw = env.reset()
     rng = np.random.default_rng([seed, 7])
     expert = make_expert(task.env_id, env, rng)
     expert.reset()
     extra = int(rng.integers(1, 4))
-    demo = _record(env, seed, expert.act, lambda: expert.failed, max_steps or task.max_episode_steps, extra)
+    demo = _record(
+        env, raw, seed, expert.act, lambda: expert.failed, max_steps or task.max_episode_steps, extra
+    )
     return demo if demo["attrs"]["success"] else None
 
 
@@ -105,10 +111,10 @@ def replay_actions(env, task: TaskConfig, seed: int, actions: np.ndarray) -> dic
     """``actions`` played open loop from the scene of ``seed`` (a perturbed expert episode), up to
     ``task.max_episode_steps``; the robomimic demo dict, successful or not (``attrs["success"]``)."""
     sim.seed_episode(env, seed)
-    env.reset()
+    raw = env.reset()
     queue = iter(np.asarray(actions, dtype=np.float64))
     extra = int(np.random.default_rng([seed, 8]).integers(1, 4))
-    return _record(env, seed, lambda: next(queue, None), lambda: False, task.max_episode_steps, extra)
+    return _record(env, raw, seed, lambda: next(queue, None), lambda: False, task.max_episode_steps, extra)
 
 
 # -- workers -----------------------------------------------------------------------------------------
