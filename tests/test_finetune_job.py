@@ -184,3 +184,8 @@ def test_dsrl_online_stores_the_chunk_noise_and_leaves_the_flow_as_it_was(tmp_pa
     bc = load_checkpoint(bc_checkpoint)
     flow = {k[len("flow.") :]: v for k, v in state["model"].items() if k.startswith("flow.")}
     assert flow and all(torch.equal(v, bc["ema"][k]) for k, v in flow.items())  # frozen
+    # batches hold chunk starts only (every-step windows left 1 in action_steps valid); only a chunk
+    # that crosses a truncated end drops out
+    logged = (run_dir / "logs" / "finetune" / "scalars" / "online" / "valid_fraction.csv").read_text()
+    fractions = [float(line.split(",")[1]) for line in logged.split()]
+    assert fractions and min(fractions) > 0.5, fractions
