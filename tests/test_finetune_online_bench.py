@@ -1,0 +1,56 @@
+"""The online fine-tuning benchmark's figures: mean and spread over seeds, the control arms, and the
+RESULTS.md table drawn from them (synthetic runs with numbers chosen by hand)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from benchmarks.bench_finetune_online import aggregate, read_control
+from benchmarks.finetune_report import render_finetune_online
+
+
+def _run(curve, test, stopped=False):
+    return {
+        "stopped_early": stopped,
+        "validation": [{"env_steps": x, "phase": "online", "success_once": v} for x, v in curve],
+        "test": {"success_once": test, "episodes": 100},
+        "env_steps_per_s_actor": 200.0,
+        "updates_per_s": 10.0,
+    }
+
+
+def test_aggregate_takes_mean_and_spread_at_the_steps_every_seed_reached():
+    runs = {
+        0: _run([(0, 0.2), (20_000, 0.4), (40_000, 0.6)], 0.5),
+        1: _run([(0, 0.2), (20_000, 0.2)], 0.3, stopped=True),  # stopped before 40k
+    }
+    agg = aggregate(runs)
+    assert agg["seeds"] == [0, 1]
+    assert agg["test_mean"] == pytest.approx(0.4) and (agg["test_min"], agg["test_max"]) == (0.3, 0.5)
+    assert [c["env_steps"] for c in agg["curve"]] == [0, 20_000]
+    assert agg["curve"][1] == {"env_steps": 20_000, "mean": pytest.approx(0.3), "min": 0.2, "max": 0.4}
+
+
+def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
+    (tmp_path / "eval.json").write_text(json.dumps({"success_once": 0.18, "episodes": 100}))
+    (tmp_path / "summary.json").write_text(json.dumps({"steps": 2000, "cpu_seconds": 300.0}))
+    control = read_control(tmp_path)
+    assert control["test"]["success_once"] == 0.18 and control["steps"] == 2000
+    runs = {0: _run([(0, 0.18), (20_000, 0.3)], 0.32)}
+    data = {
+        "task": "maniskill_pickcube",
+        "checkpoint": "bc.pt",
+        "eval_every": 20_000,
+        "val_episodes": 50,
+        "test_episodes": 100,
+        "controls": {"bc_start": control},
+        "algorithms": {
+            "dsrl": {"budget_overrides": ["x=1"], "runs": {"0": runs[0]}, "aggregate": aggregate(runs)}
+        },
+    }
+    table = render_finetune_online(data)
+    assert "| bc_start | 1 | 0.18 (100 episodes) |" in table
+    assert "| dsrl | 1 | 0.32 (0.32-0.32) | 0k: 0.18, 20k: 0.30 | 200 | 10 |" in table
+    assert "dsrl: `x=1`" in table
