@@ -81,6 +81,10 @@ def read_run(run_dir: Path) -> dict:
         summary = json.loads((run_dir / "summary.json").read_text())
         test = json.loads((run_dir / "eval.json").read_text())
     val = [e for e in history["evals"] if e.get("split", "val") == "val"]
+    # the harness's closing validation carries no phase and no env-step count: it is the run's last step
+    val = [
+        e if e.get("phase") else {**e, "phase": "final", "env_steps": summary.get("env_steps")} for e in val
+    ]
     rounds = history.get("rounds", [])
     trained = [r for r in rounds if r.get("policy") == "actor"]
 

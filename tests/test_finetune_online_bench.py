@@ -54,3 +54,24 @@ def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
     assert "| bc_start | 1 | 0.18 (100 episodes) |" in table
     assert "| dsrl | 1 | 0.32 (0.32-0.32) | 0k: 0.18, 20k: 0.30 | 200 | 10 |" in table
     assert "dsrl: `x=1`" in table
+
+
+def test_a_finished_run_reads_its_closing_validation_at_its_last_env_step(tmp_path):
+    from benchmarks.bench_finetune_online import read_run
+
+    evals = [
+        {"split": "val", "phase": "start", "env_steps": 0, "success_once": 0.18},
+        {"split": "val", "phase": "online", "env_steps": 20_000, "success_once": 0.2},
+        {"split": "val", "success_once": 0.16},  # the harness's closing validation: no phase, no steps
+        {"split": "test", "success_once": 0.18},
+    ]
+    (tmp_path / "history.json").write_text(json.dumps({"evals": evals, "rounds": []}))
+    (tmp_path / "summary.json").write_text(json.dumps({"env_steps": 40_000, "online_updates": 8}))
+    (tmp_path / "eval.json").write_text(json.dumps({"success_once": 0.18, "episodes": 100}))
+    run = read_run(tmp_path)
+    assert [(v["env_steps"], v["success_once"]) for v in run["validation"]] == [
+        (0, 0.18),
+        (20_000, 0.2),
+        (40_000, 0.16),
+    ]
+    assert aggregate({0: run})["curve"][0] == {"env_steps": 0, "mean": 0.18, "min": 0.18, "max": 0.18}
