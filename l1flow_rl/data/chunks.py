@@ -183,7 +183,7 @@ class ChunkWindowSampler(Sampler):
                 last_needed = rows - self.layout.obs_horizon + self.layout.pred_horizon
                 valid = last_needed - (end - 1) <= self.layout.max_pad_after
             if self.layout.anchor_key is not None:
-                valid &= self._anchor_rows(data, valid.shape[0])
+                valid &= self._anchor_rows(data)
             if alive is None:
                 self._check_every_episode_has_windows(data.get("episode"), start, valid)
             else:
@@ -195,7 +195,7 @@ class ChunkWindowSampler(Sampler):
             self._cache = (key, start, end, anchors)
         return self._cache[1], self._cache[2], self._cache[3]
 
-    def _anchor_rows(self, data: TensorDictBase, n: int) -> Tensor:
+    def _anchor_rows(self, data: TensorDictBase) -> Tensor:
         key = self.layout.anchor_key
         entry = data.get(key, default=None)
         if entry is None:
@@ -203,7 +203,7 @@ class ChunkWindowSampler(Sampler):
                 f"{self.layout.source}: anchor_key={key!r} names no stored entry "
                 f"(has {sorted(map(str, data.keys(True, True)))})"
             )
-        return (entry.reshape(entry.shape[0], -1)[:, 0] == 1)[:n]
+        return entry.reshape(entry.shape[0], -1)[:, 0] == 1
 
     def _check_every_episode_has_windows(self, episode: Tensor, start: Tensor, valid: Tensor) -> None:
         starts = start.unique()

@@ -110,7 +110,15 @@ class RLBuffers:
         online = (*CORE_KEYS, *online_keys)
         if online_anchor_key is not None and online_anchor_key not in online:
             raise ValueError(f"online_anchor_key={online_anchor_key!r} is not among the stored {online}")
-        anchored = {"anchor_key": online_anchor_key}
+
+        def online_buffer():  # reads ``common`` when called: the balanced branch drops its batch size
+            return make_chunk_buffer(
+                None,
+                seed=seed + 1,
+                capacity=max(online_capacity, 1),
+                **{**common, "keys": online, "anchor_key": online_anchor_key},
+            )
+
         if self.mixing == "seed":
             if online_keys:
                 raise ValueError(
@@ -127,13 +135,7 @@ class RLBuffers:
             # "conflicting batch sizes" warning on every draw
             common["batch_size"] = None
             self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
-            self.online = make_chunk_buffer(
-                None,
-                seed=seed + 1,
-                capacity=max(online_capacity, 1),
-                **{**common, "keys": online},
-                **anchored,
-            )
+            self.online = online_buffer()
             self.mixed = ChunkOfflineToOnlineBuffer(
                 self.offline,
                 self.online,
@@ -142,13 +144,7 @@ class RLBuffers:
             )
         else:  # online data only
             self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
-            self.online = make_chunk_buffer(
-                None,
-                seed=seed + 1,
-                capacity=max(online_capacity, 1),
-                **{**common, "keys": online},
-                **anchored,
-            )
+            self.online = online_buffer()
             self.mixed = self.online
         self.batch_size = int(cfg.finetune.batch_size)
         self.online_steps_stored = 0
