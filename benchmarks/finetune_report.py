@@ -1,7 +1,8 @@
 """The RESULTS.md sections of fine-tuning: ``finetune_cost_*.json`` (``bench_finetune_cost``): where a
 QC / FQL / DSRL update's time goes, and env steps/s with each algorithm's acting module;
 ``finetune_online_*.json`` (``bench_finetune_online``): success against env steps per algorithm beside
-the control arms.
+the control arms; ``noise_authority*.json`` (``bench_noise_authority``): how far a steering policy's
+input noise moves each checkpoint's executed actions.
 
 For ``benchmarks.report``'s ``GROUPS["Fine-tuning"]``, the entry
 ``(r"finetune_cost_.*\\.json", "Fine-tuning: cost of an update and of acting", render_finetune_cost)``.
@@ -9,7 +10,7 @@ For ``benchmarks.report``'s ``GROUPS["Fine-tuning"]``, the entry
 
 from __future__ import annotations
 
-__all__ = ["render_finetune_cost", "render_finetune_online"]
+__all__ = ["render_finetune_cost", "render_finetune_online", "render_noise_authority"]
 
 #: the parts of an update the bench times, in the table's column order
 _PARTS = ("update", "targets", "proposals_2nfe", "critic_fwd_bwd", "actor_fwd_bwd", "bc_fwd_bwd")
@@ -90,5 +91,57 @@ def render_finetune_online(data: dict) -> str:
             "",
             "Budget overrides of the presets: "
             + "; ".join(f"{a}: `{' '.join(o)}`" for a, o in overrides.items()),
+        ]
+    return "\n".join(lines)
+
+
+#: the action-dim groups of ``bench_noise_authority.action_groups``, in the table's column order
+_GROUPS = ("position", "rotation", "gripper")
+
+
+def _group_mean(values: list[float], dims: list[int] | None) -> str:
+    return f"{sum(values[d] for d in dims) / len(dims):.3g}" if dims else "–"
+
+
+def render_noise_authority(data: dict) -> str:
+    checkpoints = data["checkpoints"].values()
+    groups = [g for g in _GROUPS if any(g in c["dim_groups"] for c in checkpoints)]
+    header = ["checkpoint", "task", "method, sampler (NFE)"]
+    header += [f"{g} authority" for g in groups] + [f"{g} std over noise (norm.)" for g in groups]
+    header += ["all dims, std (norm.): corners / N(0, 9)"]
+    lines = [
+        f"{data['states']} states per checkpoint (windows of its training demonstrations, seed "
+        f"{data['seed']}), {data['draws']} noise draws per state, executed steps only. Authority: the std "
+        f"of the executed actions over w ~ N(0, I) clipped to ±{data['bound']:g} divided by their std "
+        "across states (at w = 0), averaged over a group's dims; std over noise in the policy's normalised "
+        "action units (limits: each dim spans [-1, 1] over the demonstrations).",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
+    for name, c in data["checkpoints"].items():
+        norm, dims = c["normalized"], c["dim_groups"]
+        every = list(range(c["action_dim"]))
+        sampler = c["sampler"]
+        cells = [name, c["task"], f"{c['method']}, {sampler['name']} ({sampler['nfe']})"]
+        cells += [_group_mean(c["authority"], dims.get(g)) for g in groups]
+        cells += [_group_mean(norm["std_noise"], dims.get(g)) for g in groups]
+        cells.append(
+            f"{_group_mean(norm['std_noise_corners'], every)} / {_group_mean(norm['std_noise_wide'], every)}"
+        )
+        lines.append("| " + " | ".join(cells) + " |")
+    stepped = [n for n, c in data["checkpoints"].items() if c["sampler"].get("per_step_noise")]
+    lines += [
+        "",
+        "A DSRL actor, which acts only through w within the bound, can move a policy's executed actions "
+        "by about its std over noise, that is by the authority's fraction of how much they vary from state "
+        "to state: where the authority is a few percent, its critic sees a Q nearly flat in w and little "
+        "behaviour is within its reach.",
+    ]
+    if stepped:
+        lines += [
+            "",
+            f"{', '.join(stepped)}: the sampler draws noise at every step; it is held fixed across w (only "
+            "the initial noise is steered) and its own spread is the file's `std_step_noise`.",
         ]
     return "\n".join(lines)

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.export_report import render_export_latency
-from benchmarks.finetune_report import render_finetune_cost, render_finetune_online
+from benchmarks.finetune_report import render_finetune_cost, render_finetune_online, render_noise_authority
 from benchmarks.sweep import convergence_steps
 from l1flow_rl.workspace.run_clock import CPU_SCOPE
 
@@ -554,6 +554,11 @@ GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
             render_finetune_online,
         ),
         (r"finetune_cost_.*\.json", "Fine-tuning: cost of an update and of acting", render_finetune_cost),
+        (
+            r"noise_authority.*\.json",
+            "Steering authority of the input noise (what DSRL can move)",
+            render_noise_authority,
+        ),
         (
             r"flow_q_.*\.json",
             "Flow-Q fine-tuning against continued BC (the retired FlowQLoss)",
