@@ -4,11 +4,19 @@ and the frozen L1 Flow policy decodes it into the executed chunk.
 The flow maps noise to a chunk deterministically in two network calls, so steering its input is a
 cheap, bounded way to change behaviour without touching the behaviour-cloned weights: no gradient
 passes through the flow, and :class:`~l1flow_rl.DSRLLoss` never evaluates it.
+
+Steering the noise moves the executed actions only as far as the sampler lets the noise matter. The
+2-NFE L1 Flow sampler, trained on unimodal demonstrations, is nearly deterministic in its noise
+(``benchmarks/results/noise_authority.json``: on PickCube the executed positions move ~5 % as much
+over noise draws as over states). ``residual_scale`` steers the actions instead: the executed window
+is the flow's zero-noise chunk plus ``residual_scale * w`` in normalised action units (a bounded
+residual, as Policy Decorator's), and w has the window's shape [K, A]. SAC is the same in both.
 """
 
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Sequence
 
 import torch
@@ -35,7 +43,12 @@ class NoisePolicy(nn.Module):
     """
 
     def __init__(
-        self, flow: ChunkPolicy, *, bound: float = 1.5, hidden_dims: Sequence[int] = (512, 512, 512)
+        self,
+        flow: ChunkPolicy,
+        *,
+        bound: float = 1.5,
+        hidden_dims: Sequence[int] = (512, 512, 512),
+        noise_shape: Sequence[int] | None = None,
     ) -> None:
         super().__init__()
         if bound <= 0:
@@ -43,8 +56,8 @@ class NoisePolicy(nn.Module):
         self.bound = float(bound)
         self.encoder = fresh_encoder(flow.encoder)
         self.obs_normalizer: NormalizerDict = copy.deepcopy(flow.obs_normalizer)
-        self.noise_shape = (flow.pred_horizon, flow.action_dim)
-        dim = flow.pred_horizon * flow.action_dim
+        self.noise_shape = tuple(noise_shape or (flow.pred_horizon, flow.action_dim))
+        dim = math.prod(self.noise_shape)
         layers: list[nn.Module] = []
         width = flow.obs_horizon * self.encoder.feature_dim
         for h in hidden_dims:
@@ -108,29 +121,51 @@ class NoiseActor(ExecutesChunks, TensorDictModuleBase):
         flow: L1FlowActor,
         noise_policy: NoisePolicy,
         *,
+        residual_scale: float | None = None,
         in_keys: Sequence[NestedKey] = ("observation",),
         out_keys: Sequence[NestedKey] = ("action_chunk", "noise_chunk"),
     ) -> None:
         super().__init__()
         self.flow = flow.requires_grad_(False)
         self.noise_policy = noise_policy
+        self.residual_scale = None if residual_scale is None else float(residual_scale)
+        expected = self._steered_shape(flow.policy, self.residual_scale)
+        if tuple(noise_policy.noise_shape) != expected:
+            what = "the executed window [K, A]" if self.residual_scale else "the flow's noise [H, A]"
+            shape = list(noise_policy.noise_shape)
+            raise ValueError(f"the steering policy's shape {shape} must be {what} = {list(expected)}")
+        if self.residual_scale is not None and self.residual_scale <= 0:
+            raise ValueError(f"residual_scale must be > 0 (or None: steer the noise), got {residual_scale}")
         self.in_keys: list[NestedKey] = list(in_keys)
         self.out_keys: list[NestedKey] = list(out_keys)
 
+    @staticmethod
+    def _steered_shape(policy: ChunkPolicy, residual_scale: float | None) -> tuple[int, int]:
+        steps = policy.action_steps if residual_scale else policy.pred_horizon
+        return steps, policy.action_dim
+
     @classmethod
     def from_flow(
-        cls, flow: L1FlowActor, *, bound: float = 1.5, hidden_dims: Sequence[int] = (512, 512, 512)
+        cls,
+        flow: L1FlowActor,
+        *,
+        bound: float = 1.5,
+        hidden_dims: Sequence[int] = (512, 512, 512),
+        residual_scale: float | None = None,
     ) -> NoiseActor:
-        policy = NoisePolicy(flow.policy, bound=bound, hidden_dims=hidden_dims)
-        return cls(flow, policy.to(next(flow.policy.parameters()).device))
+        shape = cls._steered_shape(flow.policy, residual_scale)
+        policy = NoisePolicy(flow.policy, bound=bound, hidden_dims=hidden_dims, noise_shape=shape)
+        return cls(flow, policy.to(next(flow.policy.parameters()).device), residual_scale=residual_scale)
 
     def prior(self) -> NoiseActor:
-        """The same flow acting on N(0, I) noise clipped to the bound (the BC policy), writing the same
-        keys: what DSRL collects with before its first update."""
+        """The same flow acting on w ~ N(0, I) clipped to the bound, writing the same keys: what DSRL
+        collects with before its first update (the BC policy; with ``residual_scale``, the BC policy's
+        zero-noise chunk perturbed by the residual's prior)."""
         bound = self.noise_policy.bound
         return NoiseActor(
             self.flow,
             PriorNoise(self.noise_policy.noise_shape, bound),
+            residual_scale=self.residual_scale,
             in_keys=self.in_keys,
             out_keys=self.out_keys,
         )
@@ -141,12 +176,19 @@ class NoiseActor(ExecutesChunks, TensorDictModuleBase):
 
     @torch.no_grad()
     def decode(self, obs: TensorDictBase, noise: Tensor) -> Tensor:
-        """The flow's full chunk [N, H, A] (environment units) from input noise [N, H, A]."""
+        """The full chunk [N, H, A] (environment units) from the steering input: the flow's input noise
+        [N, H, A], or with ``residual_scale`` the residual [N, K, A] added to the executed window of the
+        flow's zero-noise chunk (normalised units)."""
         policy = self.policy
         cond = policy.encode(obs)
-        x1 = policy.sampler(
-            lambda x, t: policy.denoise(x, t, cond), noise.to(device=cond.device, dtype=cond.dtype)
-        )
+        noise = noise.to(device=cond.device, dtype=cond.dtype)
+        if self.residual_scale is None:
+            x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), noise)
+        else:
+            zeros = torch.zeros(noise.shape[0], policy.pred_horizon, policy.action_dim, dtype=cond.dtype)
+            x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), zeros.to(cond.device))
+            start = policy.obs_horizon - 1
+            x1[:, start : start + policy.action_steps] += self.residual_scale * noise
         return policy.action_normalizer.unnormalize(x1)
 
     @torch.no_grad()

@@ -22,6 +22,7 @@ __all__ = [
     "OfflineConfig",
     "OnlineConfig",
     "QCSettings",
+    "ResidualSettings",
     "round_frames",
 ]
 
@@ -60,8 +61,16 @@ class DSRLSettings:
 
 
 @dataclass
+class ResidualSettings(DSRLSettings):
+    # SAC over a bounded residual on the executed window (normalised action units): the executed chunk is
+    # the flow's zero-noise chunk + residual_scale * w, |w| <= noise_bound. Why: the 2-NFE sampler barely
+    # depends on its noise (benchmarks/results/noise_authority.json), so steering the noise moves little.
+    residual_scale: float = 0.1
+
+
+@dataclass
 class FinetuneConfig:
-    algorithm: str = "qc"  # a registered algorithm: qc | fql | dsrl
+    algorithm: str = "qc"  # a registered algorithm: qc | fql | dsrl | residual
     gamma: float = 0.99
     tau: float = 0.005  # Polyak rate of the target critics (TorchRL SoftUpdate)
     lr: float = 3.0e-4  # Adam, every network
@@ -75,6 +84,7 @@ class FinetuneConfig:
     qc: QCSettings = field(default_factory=QCSettings)
     fql: FQLSettings = field(default_factory=FQLSettings)
     dsrl: DSRLSettings = field(default_factory=DSRLSettings)
+    residual: ResidualSettings = field(default_factory=ResidualSettings)
     log_every: int = 50  # updates
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -53,8 +54,10 @@ class DSRLLoss(ChunkCriticLoss):
 
     Keyword Args:
         target_entropy: SAC's entropy target for log pi over the H x A noise (DSRL: 0).
-        init_alpha: the starting temperature.
-        gamma, q_agg, rl_horizon: as :class:`~l1flow_rl.ChunkCriticLoss` (DSRL/SAC: ``min``).
+        init_alpha: the starting temperature (1e-3: at SAC's 1 the entropy of the H x A noise swamps
+            sparse rewards, see :class:`~l1flow_rl.config.finetune.DSRLSettings`).
+        td_options: ``gamma``, ``q_agg`` and ``rl_horizon`` of :class:`~l1flow_rl.ChunkCriticLoss`
+            (here ``q_agg`` defaults to ``min``, as SAC's).
 
     The batch holds ``"noise"`` [*B, H, A], the w its chunk was decoded from, besides the critic
     entries. Returns ``"loss_qvalue"``, ``"loss_actor"``, ``"loss_alpha"`` and detached
@@ -88,14 +91,12 @@ class DSRLLoss(ChunkCriticLoss):
         critic: ChunkCritic,
         *,
         target_entropy: float = 0.0,
-        init_alpha: float = 1.0,
-        gamma: float = 0.99,
-        q_agg: str = "min",
-        rl_horizon: int | None = None,
+        init_alpha: float = 1e-3,
+        **td_options: Any,
     ) -> None:
         if not isinstance(actor_network, NoiseActor):
             raise TypeError(f"actor_network must be a NoiseActor, got {type(actor_network).__name__}")
-        super().__init__(critic, actor_network.flow, gamma=gamma, q_agg=q_agg, rl_horizon=rl_horizon)
+        super().__init__(critic, actor_network.flow, **{"q_agg": "min", **td_options})
         shape = actor_network.noise_policy.noise_shape
         if self.critic.input_shape != shape or self.critic.normalize_input:
             raise ValueError(

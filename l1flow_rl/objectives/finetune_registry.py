@@ -25,7 +25,7 @@ from omegaconf import DictConfig
 from torch import nn
 
 from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.config.finetune import DSRLSettings, FQLSettings, QCSettings
+from l1flow_rl.config.finetune import DSRLSettings, FQLSettings, QCSettings, ResidualSettings
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.noise_actor import NoiseActor
 from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
@@ -144,11 +144,16 @@ def _build_fql(flow: L1FlowActor, cfg: DictConfig) -> FQLLoss:
     )
 
 
-def _build_dsrl(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
-    s = cfg.dsrl
-    steer = NoiseActor.from_flow(flow, bound=float(s.noise_bound), hidden_dims=tuple(s.actor_hidden_dims))
-    noise_shape = (flow.policy.pred_horizon, flow.policy.action_dim)
-    critic = _critic(flow, cfg, noise_shape, normalize_input=False)
+def _build_steering(
+    flow: L1FlowActor, cfg: DictConfig, s: DictConfig, residual_scale: float | None
+) -> DSRLLoss:
+    steer = NoiseActor.from_flow(
+        flow,
+        bound=float(s.noise_bound),
+        hidden_dims=tuple(s.actor_hidden_dims),
+        residual_scale=residual_scale,
+    )
+    critic = _critic(flow, cfg, steer.noise_policy.noise_shape, normalize_input=False)
     return DSRLLoss(
         steer,
         critic,
@@ -158,23 +163,29 @@ def _build_dsrl(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
     )
 
 
+def _build_dsrl(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
+    return _build_steering(flow, cfg, cfg.dsrl, None)
+
+
+def _build_residual(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
+    return _build_steering(flow, cfg, cfg.residual, float(cfg.residual.residual_scale))
+
+
 def _flow(loss) -> L1FlowActor:
     return loss.flow
 
 
 register_finetune_algorithm(FinetuneAlgorithm("qc", QCLoss, QCSettings, _build_qc, _flow))
 register_finetune_algorithm(FinetuneAlgorithm("fql", FQLLoss, FQLSettings, _build_fql, _flow))
+_STEERING = {
+    "start_actor": lambda loss: loss.actor.prior(),
+    # the chunk's steering input at each step, and the wrapper's step count (1 where a chunk starts)
+    "online_keys": ("noise", "counter"),
+    # sampling every step gave 1 valid window in 8 (valid_fraction 0.10-0.12 on PushCube)
+    "online_anchor_key": "counter",
+    "uses_offline_data": False,
+}
+register_finetune_algorithm(FinetuneAlgorithm("dsrl", DSRLLoss, DSRLSettings, _build_dsrl, **_STEERING))
 register_finetune_algorithm(
-    FinetuneAlgorithm(
-        "dsrl",
-        DSRLLoss,
-        DSRLSettings,
-        _build_dsrl,
-        lambda loss: loss.actor.prior(),
-        # the chunk's noise at each step, and the wrapper's step count (1 where a chunk starts)
-        online_keys=("noise", "counter"),
-        # sampling every step gave 1 valid window in 8 (valid_fraction 0.10-0.12 on PushCube)
-        online_anchor_key="counter",
-        uses_offline_data=False,
-    )
+    FinetuneAlgorithm("residual", DSRLLoss, ResidualSettings, _build_residual, **_STEERING)
 )

@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
@@ -51,7 +53,7 @@ class FQLLoss(ChunkCriticLoss):
         alpha: weight of the distillation term (with ``normalize_q_loss``, FQL's README advises
             0.03-10; TorchRL 0.15's FQLLoss defaults to 10).
         normalize_q_loss: scale the Q term by 1 / mean|Q| (detached).
-        gamma, q_agg, rl_horizon: as :class:`~l1flow_rl.ChunkCriticLoss`.
+        td_options: ``gamma``, ``q_agg`` and ``rl_horizon`` of :class:`~l1flow_rl.ChunkCriticLoss`.
 
     Returns ``"loss_qvalue"``, ``"loss_actor"``, ``"loss_bc"`` and detached ``"q_actor_mean"``,
     ``"distill_loss"``, ``"lambda"`` and the critic diagnostics.
@@ -69,13 +71,11 @@ class FQLLoss(ChunkCriticLoss):
         *,
         alpha: float = 10.0,
         normalize_q_loss: bool = True,
-        gamma: float = 0.99,
-        q_agg: str = "mean",
-        rl_horizon: int | None = None,
+        **td_options: Any,
     ) -> None:
         if alpha < 0:
             raise ValueError(f"alpha must be >= 0, got {alpha}")
-        super().__init__(critic, flow_network, gamma=gamma, q_agg=q_agg, rl_horizon=rl_horizon)
+        super().__init__(critic, flow_network, **td_options)
         if not isinstance(actor_network, OneStepActor):
             raise TypeError(f"actor_network must be a OneStepActor, got {type(actor_network).__name__}")
         mu, flow = actor_network.policy, flow_network.policy

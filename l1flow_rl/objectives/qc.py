@@ -8,6 +8,8 @@ move the proposals), unless ``freeze_flow``.
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
@@ -46,7 +48,7 @@ class QCLoss(ChunkCriticLoss):
     Keyword Args:
         num_samples: N proposals per next state (QC: 32).
         freeze_flow: keep the flow's weights as they are (no BC term, no flow parameters trained).
-        gamma, q_agg, rl_horizon: as :class:`~l1flow_rl.ChunkCriticLoss`.
+        td_options: ``gamma``, ``q_agg`` and ``rl_horizon`` of :class:`~l1flow_rl.ChunkCriticLoss`.
 
     :attr:`actor` is the acting :class:`~l1flow_rl.BestOfNActor`: it shares the flow and the online
     critics with this loss, so acting follows training.
@@ -61,11 +63,9 @@ class QCLoss(ChunkCriticLoss):
         *,
         num_samples: int = 32,
         freeze_flow: bool = False,
-        gamma: float = 0.99,
-        q_agg: str = "mean",
-        rl_horizon: int | None = None,
+        **td_options: Any,
     ) -> None:
-        super().__init__(critic, actor_network, gamma=gamma, q_agg=q_agg, rl_horizon=rl_horizon)
+        super().__init__(critic, actor_network, **td_options)
         self.__dict__["flow"] = actor_network  # the BC flow (the acting start; shared, not copied)
         self.freeze_flow = bool(freeze_flow)
         if self.freeze_flow:
