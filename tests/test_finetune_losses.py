@@ -186,6 +186,13 @@ def test_residual_steering_moves_only_the_executed_window_by_the_scaled_residual
     assert torch.allclose(moved[:, start : start + 4], 0.2 * w, atol=1e-5)
     moved[:, start : start + 4] = 0
     assert moved.abs().max() < 1e-5  # steps outside the window are the flow's
+    # its warm-up actor is the BC chunk itself (a zero residual)
+    acted = steer.prior()(TensorDict({"observation": torch.randn(5, 2, 2)}, [5]))
+    assert acted["noise_chunk"].abs().max() == 0
+    assert torch.allclose(
+        acted["action_chunk"],
+        flow.policy.executable(flow.policy.sample_chunk(acted["observation"], deterministic=True)),
+    )
     # the critic values w, so SAC's loss takes it unchanged; its critic is built on the window's shape
     critic = ChunkCritic.from_policy(flow, input_shape=(4, 3), hidden_dims=(8,), normalize_input=False)
     DSRLLoss(steer, critic)
