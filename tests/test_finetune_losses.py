@@ -72,6 +72,23 @@ def test_td_target_by_hand_at_terminated_and_truncated_ends(q_agg, q_next):
     assert out["valid_fraction"].item() == pytest.approx(valid.float().mean().item())
 
 
+def test_target_critics_draw_a_random_subset_of_the_ensemble_for_each_bootstrap():
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    biases = [float(b) for b in range(10)]  # member e values everything at e
+    critic = linear_critic(flow, (H_EXEC, 3), biases=biases)
+    zeros = lambda obs: torch.zeros(obs.shape[0], H_EXEC, 3)  # noqa: E731
+    loss = ChunkCriticLoss(critic, flow, next_actor=zeros, gamma=GAMMA, q_agg="min", target_critics=2)
+    obs = flow.policy.as_obs_dict(torch.randn(4, 2, 2))
+    torch.manual_seed(0)
+    drawn = {loss.next_value(None, obs)[0].item() for _ in range(200)}
+    # min over 2 of 10 members: never the largest member alone, every smaller one at times
+    assert drawn == set(biases[:9])
+    everyone = ChunkCriticLoss(critic, flow, next_actor=zeros, q_agg="min")
+    assert everyone.next_value(None, obs).tolist() == [0.0] * 4
+    with pytest.raises(ValueError, match=r"target_critics=11 must lie in \[1, num_critics=10\]"):
+        ChunkCriticLoss(critic, flow, next_actor=zeros, target_critics=11)
+
+
 def test_critic_loss_ignores_invalid_windows():
     flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
     loss = ChunkCriticLoss(

@@ -76,6 +76,9 @@ class FinetuneConfig:
     lr: float = 3.0e-4  # Adam, every network
     batch_size: int = 256
     num_critics: int = 2
+    # critics drawn at random for each batch's bootstrap (min/mean over them; the actor climbs the mean
+    # of all): RLPD's 2 of 10 against the overestimation measured with 2 critics; 0: all of them
+    target_critics: int = 0
     critic_hidden_dims: list[int] = field(default_factory=lambda: [512, 512, 512, 512])  # FQL/QC: 4 x 512
     q_agg: str = "mean"  # mean | min over the target critics (QC, FQL: mean; SAC/DSRL: min)
     rl_horizon: int = 0  # executed actions per critic chunk; 0: the policy's action_steps (QC: all of them)

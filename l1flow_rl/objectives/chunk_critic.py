@@ -111,6 +111,7 @@ class ChunkCriticLoss(LossModule):
         gamma: float = 0.99,
         q_agg: str = "mean",
         rl_horizon: int | None = None,
+        target_critics: int | None = None,
     ) -> None:
         if q_agg not in Q_AGGREGATIONS:
             raise ValueError(f"q_agg must be one of {Q_AGGREGATIONS}, got {q_agg!r}")
@@ -134,6 +135,10 @@ class ChunkCriticLoss(LossModule):
                 f"rl_horizon={self.rl_horizon} must lie in [1, action_steps={reader.action_steps}]"
             )
         self.gamma, self.q_agg = float(gamma), q_agg
+        members = self.critic.num_critics
+        if target_critics is not None and not 1 <= target_critics <= members:
+            raise ValueError(f"target_critics={target_critics} must lie in [1, num_critics={members}]")
+        self.target_critics = target_critics
         self._next_actor = next_actor
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
@@ -193,13 +198,20 @@ class ChunkCriticLoss(LossModule):
         """[N, E] -> [N] by ``q_agg``."""
         return q.min(-1).values if self.q_agg == "min" else q.mean(-1)
 
+    def aggregate_target(self, q: Tensor) -> Tensor:
+        """The bootstrap's [N, E] -> [N]: ``q_agg`` over ``target_critics`` members drawn at random for
+        the batch (RLPD/REDQ: min over 2 of 10), or over all of them."""
+        if self.target_critics is not None:
+            q = q[:, torch.randperm(q.shape[-1], device=q.device)[: self.target_critics]]
+        return self.aggregate(q)
+
     def next_value(self, td: TensorDictBase, next_obs: TensorDictBase) -> Tensor:
         """Qbar(s_{t+h}, a') [N] with a' from the next-chunk actor (called under no_grad)."""
         if self._next_actor is None:
             raise NotImplementedError(
                 f"{type(self).__name__} needs next_actor= (the chunk valued at the next observation)"
             )
-        return self.aggregate(self.q(next_obs, self._next_actor(next_obs), target=True))
+        return self.aggregate_target(self.q(next_obs, self._next_actor(next_obs), target=True))
 
     @torch.no_grad()
     def td_target(self, td: TensorDictBase) -> Tensor:

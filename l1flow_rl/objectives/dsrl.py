@@ -137,13 +137,16 @@ class DSRLLoss(ChunkCriticLoss):
 
     def next_value(self, td: TensorDictBase, next_obs: TensorDictBase) -> Tensor:
         w, log_prob = self._sample(next_obs)
-        return self.aggregate(self.q(next_obs, w, target=True)) - self.log_alpha.exp().detach() * log_prob
+        value = self.aggregate_target(self.q(next_obs, w, target=True))
+        return value - self.log_alpha.exp().detach() * log_prob
 
     def actor_loss(self, td: TensorDictBase) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
         """(actor loss, temperature loss, diagnostics)."""
         obs = self.read_observation(td, self.tensor_keys.observation)
         w, log_prob = self._sample(obs)
-        q = self.aggregate(self.q(obs, w, detach=True))
+        q = self.q(obs, w, detach=True)
+        # an ensemble with drawn target members (RLPD): the actor climbs the members' mean
+        q = q.mean(-1) if self.target_critics is not None else self.aggregate(q)
         alpha = self.log_alpha.exp()
         loss_actor = (alpha.detach() * log_prob - q).mean()
         loss_alpha = -(self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()

@@ -117,7 +117,12 @@ def _horizon(flow: L1FlowActor, cfg: DictConfig) -> int:
 
 
 def _common(cfg: DictConfig) -> dict:
-    return {"gamma": float(cfg.gamma), "q_agg": str(cfg.q_agg), "rl_horizon": int(cfg.rl_horizon) or None}
+    return {
+        "gamma": float(cfg.gamma),
+        "q_agg": str(cfg.q_agg),
+        "rl_horizon": int(cfg.rl_horizon) or None,
+        "target_critics": int(cfg.target_critics) or None,
+    }
 
 
 def _build_qc(flow: L1FlowActor, cfg: DictConfig) -> QCLoss:

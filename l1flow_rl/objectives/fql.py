@@ -111,7 +111,7 @@ class FQLLoss(ChunkCriticLoss):
         scale = self.reader.action_normalizer.scale
         with self.actor_network_params.to_module(self.actor_network):
             x = self.mu.chunk(next_obs, self._noise(next_obs.shape[0], scale))
-        return self.aggregate(self.q(next_obs, self._env_executed(x), target=True))
+        return self.aggregate_target(self.q(next_obs, self._env_executed(x), target=True))
 
     def actor_loss(self, td: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
         obs = self.read_observation(td, self.tensor_keys.observation)

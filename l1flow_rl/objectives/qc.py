@@ -83,7 +83,7 @@ class QCLoss(ChunkCriticLoss):
         chunks = self.actor.propose(next_obs)  # [N, n, H, A]
         picked = self.actor.pick(next_obs, chunks)  # online critics
         chosen = self.actor.executed(chunks[torch.arange(chunks.shape[0]), picked])
-        return self.aggregate(self.q(next_obs, chosen, target=True))  # target critics
+        return self.aggregate_target(self.q(next_obs, chosen, target=True))  # target critics
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         loss_q, out = self.qvalue_loss(tensordict)
