@@ -254,3 +254,20 @@ def test_an_anchor_key_draws_windows_only_where_a_chunk_starts(writable):
 def test_an_anchor_key_the_data_lack_is_named():
     with pytest.raises(EpisodeDataError, match=r"hand\.h5: anchor_key='counter' names no stored entry"):
         make_chunk_buffer(make_episodes(), obs_horizon=2, pred_horizon=8, anchor_key="counter")
+
+
+def test_terminated_episodes_only_gives_windows_of_successful_episodes_alone():
+    kwargs = dict(obs_horizon=2, pred_horizon=8, batch_size=500, seed=0, rl_horizon=4, gamma=GAMMA)
+    rb = make_chunk_buffer(make_episodes(), terminated_episodes_only=True, **kwargs)
+    batch = rb.sample()
+    assert set(batch["episode"].tolist()) == {0}  # episode 1 was truncated
+    assert rb.sampler.window_count(rb.storage) == 6  # every step of the terminated episode
+    # a writable (online) buffer with no terminated episode yet gives no window, and says so on sampling
+    online = make_chunk_buffer(None, capacity=50, terminated_episodes_only=True, **kwargs)
+    online.extend(make_episodes(lengths=(5,), terminated=(False,)))
+    assert online.sampler.window_count(online.storage) == 0
+    with pytest.raises(EpisodeDataError, match="no episode ended in a terminal state"):
+        online.sample()
+    online.extend(make_episodes(lengths=(7,), terminated=(True,)))
+    assert online.sampler.window_count(online.storage) == 7
+    assert set(online.sample()["step"].tolist()) <= set(range(7))

@@ -38,7 +38,8 @@ def test_presets_compose_validate_and_build_their_loss(preset, loss_cls, q_agg, 
 def test_bad_fine_tuning_settings_fail_at_config_time_naming_the_field():
     with pytest.raises(
         ConfigValidationError,
-        match=r"finetune\.algorithm='sac': expected one of \['dsrl', 'fql', 'qc', 'residual'\]",
+        match=r"finetune\.algorithm='sac': expected one of "
+        r"\['dsrl', 'filtered_bc', 'fql', 'qc', 'residual'\]",
     ):
         compose_config(["finetune=qc", "finetune.algorithm=sac"], command="finetune")
     with pytest.raises(ConfigValidationError, match=r"offline\.steps=100: finetune\.algorithm=dsrl"):
@@ -51,3 +52,17 @@ def test_bad_fine_tuning_settings_fail_at_config_time_naming_the_field():
         compose_config(["finetune=fql", "finetune.q_agg=max"], command="finetune")
     with pytest.raises(Exception, match="backup"):  # a retired knob is an unknown key
         compose_config(["finetune=qc", "finetune.backup=max"], command="finetune")
+
+
+def test_filtered_bc_preset_builds_a_critic_free_loss_on_successful_online_episodes():
+    from l1flow_rl import L1FlowActor
+    from l1flow_rl.objectives.filtered_bc import FilteredBCLoss
+
+    cfg = compose_config(["finetune=filtered_bc", "checkpoint=bc.pt"], command="finetune")
+    assert cfg.finetune.batch_size == 64 and cfg.online.offline_fraction == 0.5
+    algorithm = FINETUNE_ALGORITHMS["filtered_bc"]
+    assert algorithm.online_terminated_only and algorithm.uses_offline_data
+    flow = L1FlowActor.for_state(obs_dim=3, action_dim=2, down_dims=(8, 16))
+    loss = algorithm.build(flow, cfg.finetune)
+    assert isinstance(loss, FilteredBCLoss) and loss.actor is flow and loss.rl_horizon == 8
+    assert not hasattr(loss, "target_qvalue_network_params")

@@ -209,3 +209,28 @@ def test_steering_online_stores_the_chunk_input_and_leaves_the_flow_as_it_was(
     logged = (run_dir / "logs" / "finetune" / "scalars" / "online" / "valid_fraction.csv").read_text()
     fractions = [float(line.split(",")[1]) for line in logged.split()]
     assert fractions and min(fractions) > 0.5, fractions
+
+
+def test_filtered_bc_trains_the_flow_on_demonstrations_and_successful_episodes_only(
+    tmp_path, data_dir, bc_checkpoint
+):
+    from l1flow_rl import L1FlowActor
+
+    run_dir = tmp_path / "filtered_bc"
+    overrides = ["finetune=filtered_bc", "finetune.batch_size=16", "eval.episodes=0"]
+    assert main(_args(run_dir, data_dir, bc_checkpoint, *overrides)) == 0
+    state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    assert state["progress"]["online_updates"] == 4 and state["progress"]["offline_updates"] == 4
+    actor, _ = load_actor(run_dir / "checkpoints" / "latest.pt")
+    assert isinstance(actor, L1FlowActor)  # the flow itself acts and is trained
+    bc = load_checkpoint(bc_checkpoint)
+    assert any(not torch.equal(v, bc["ema"][k]) for k, v in state["model"].items())
+    # every online round reports how many windows the successful episodes give, and batches drawn
+    # from the demonstrations alone while none had succeeded
+    rounds = json.loads((run_dir / "summary.json").read_text())
+    logged = run_dir / "logs" / "finetune" / "scalars" / "online"
+    windows = [float(line.split(",")[1]) for line in (logged / "online_windows.csv").read_text().split()]
+    succeeded = [
+        float(line.split(",")[1]) for line in (logged / "episodes_succeeded.csv").read_text().split()
+    ]
+    assert len(windows) == 2 and (windows[-1] > 0) == (sum(succeeded) > 0), (windows, succeeded, rounds)

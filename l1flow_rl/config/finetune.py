@@ -18,6 +18,7 @@ __all__ = [
     "REWARD_KEYS",
     "DSRLSettings",
     "FQLSettings",
+    "FilteredBCSettings",
     "FinetuneConfig",
     "OfflineConfig",
     "OnlineConfig",
@@ -69,8 +70,14 @@ class ResidualSettings(DSRLSettings):
 
 
 @dataclass
+class FilteredBCSettings:
+    """Filtered BC has no knob of its own: the L1 Flow loss on demonstrations and successful online
+    episodes (``finetune.lr``, ``finetune.batch_size`` and the ``online`` block set its schedule)."""
+
+
+@dataclass
 class FinetuneConfig:
-    algorithm: str = "qc"  # a registered algorithm: qc | fql | dsrl | residual
+    algorithm: str = "qc"  # a registered algorithm: qc | fql | dsrl | residual | filtered_bc
     gamma: float = 0.99
     tau: float = 0.005  # Polyak rate of the target critics (TorchRL SoftUpdate)
     lr: float = 3.0e-4  # Adam, every network
@@ -88,6 +95,7 @@ class FinetuneConfig:
     fql: FQLSettings = field(default_factory=FQLSettings)
     dsrl: DSRLSettings = field(default_factory=DSRLSettings)
     residual: ResidualSettings = field(default_factory=ResidualSettings)
+    filtered_bc: FilteredBCSettings = field(default_factory=FilteredBCSettings)
     log_every: int = 50  # updates
 
 

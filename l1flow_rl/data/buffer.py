@@ -134,6 +134,7 @@ def make_chunk_buffer(
     prefetch: int | None = None,
     source: str | None = None,
     anchor_key: NestedKey | None = None,
+    terminated_episodes_only: bool = False,
 ) -> TensorDictReplayBuffer:
     """A replay buffer whose ``sample()`` returns chunk windows with Diffusion Policy's edge padding.
 
@@ -175,6 +176,8 @@ def make_chunk_buffer(
         source: a name for the data in error messages (default: the file the episodes came from).
         anchor_key: anchor windows only at rows where this stored entry equals 1 (see
             :class:`~l1flow_rl.data.chunks.ChunkLayout`); None: at every row.
+        terminated_episodes_only: windows only in episodes that end in a terminal state (success
+            here); filtered behaviour cloning's online data.
 
     Example:
         >>> import torch
@@ -221,6 +224,7 @@ def make_chunk_buffer(
         gamma=gamma,
         reward_key=reward_key,
         anchor_key=anchor_key,
+        terminated_episodes_only=terminated_episodes_only,
         source=name,
     )
     generator = torch.Generator().manual_seed(seed)

@@ -65,6 +65,9 @@ class ChunkLayout:
         anchor_key: a stored per-step entry; where given, only rows where it equals 1 are window
             anchors (DSRL: ``MultiStepActorWrapper``'s ``"counter"``, 1 at a chunk's first step, the
             only steps whose stored noise describes the actions from there on). None: every row.
+        terminated_episodes_only: windows only in episodes whose last step is terminated (in the
+            tasks here the only terminal state is success, the sparse reward's definition): filtered
+            behaviour cloning's online data.
         source: a name for the data in error messages (a file path).
     """
 
@@ -81,6 +84,7 @@ class ChunkLayout:
     chunk_key: NestedKey = "action_chunk"
     pad_key: NestedKey = "action_is_pad"
     anchor_key: NestedKey | None = None
+    terminated_episodes_only: bool = False
     source: str = field(default="episodes", compare=False)
 
     def __post_init__(self) -> None:
@@ -184,16 +188,21 @@ class ChunkWindowSampler(Sampler):
                 valid = last_needed - (end - 1) <= self.layout.max_pad_after
             if self.layout.anchor_key is not None:
                 valid &= self._anchor_rows(data)
-            if alive is None:
-                self._check_every_episode_has_windows(data.get("episode"), start, valid)
-            else:
+            if self.layout.terminated_episodes_only:
+                terminated = data.get(("next", "terminated")).reshape(start.shape[0], -1)[:, 0].bool()
+                valid &= terminated[end - 1]
+            if alive is not None:
                 # online data: rows of overwritten episodes are dead; a short episode gives no window
                 valid &= alive[: valid.shape[0]]
-            anchors = valid.nonzero().squeeze(1)
-            if anchors.numel() == 0:
-                raise EpisodeDataError(f"{self.layout.source}: no episode is long enough to give a window")
-            self._cache = (key, start, end, anchors)
+            elif not self.layout.terminated_episodes_only:
+                self._check_every_episode_has_windows(data.get("episode"), start, valid)
+            self._cache = (key, start, end, valid.nonzero().squeeze(1))
         return self._cache[1], self._cache[2], self._cache[3]
+
+    def window_count(self, storage: Storage) -> int:
+        """How many windows the stored episodes give (0 where none qualifies: e.g. no episode has
+        ended in a terminal state yet with ``terminated_episodes_only``)."""
+        return 0 if len(storage) == 0 else int(self._episode_table(storage)[2].numel())
 
     def _anchor_rows(self, data: TensorDictBase) -> Tensor:
         key = self.layout.anchor_key
@@ -225,6 +234,9 @@ class ChunkWindowSampler(Sampler):
 
     def sample(self, storage: Storage, batch_size: int) -> tuple[Tensor, dict]:
         start, end, anchors = self._episode_table(storage)
+        if anchors.numel() == 0:
+            what = "ended in a terminal state" if self.layout.terminated_episodes_only else "is long enough"
+            raise EpisodeDataError(f"{self.layout.source}: no episode {what} to give a window")
         pick = torch.randint(anchors.numel(), (batch_size,), generator=self._rng)
         t = anchors[pick]
         t_start, t_last = start[t].unsqueeze(1), end[t].unsqueeze(1) - 1

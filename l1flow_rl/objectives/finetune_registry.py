@@ -23,13 +23,20 @@ from dataclasses import dataclass
 
 from omegaconf import DictConfig
 from torch import nn
+from torchrl.objectives import LossModule
 
 from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.config.finetune import DSRLSettings, FQLSettings, QCSettings, ResidualSettings
+from l1flow_rl.config.finetune import (
+    DSRLSettings,
+    FilteredBCSettings,
+    FQLSettings,
+    QCSettings,
+    ResidualSettings,
+)
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.noise_actor import NoiseActor
-from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.objectives.dsrl import DSRLLoss
+from l1flow_rl.objectives.filtered_bc import FilteredBCLoss
 from l1flow_rl.objectives.fql import FQLLoss
 from l1flow_rl.objectives.qc import QCLoss
 from l1flow_rl.one_step_actor import OneStepActor
@@ -50,16 +57,19 @@ class FinetuneAlgorithm:
     ``settings``: the dataclass of the algorithm's own block ``finetune.<name>``; ``online_keys``:
     per-step entries the online buffer keeps beside the core ones; ``online_anchor_key``: where set,
     online windows start only at rows where that entry is 1 (DSRL: chunk starts, the only windows
-    its critic can value); ``uses_offline_data``: False where the batches need entries
-    demonstrations lack (DSRL's noise)."""
+    its critic can value); ``online_terminated_only``: online windows only in episodes that ended in
+    success (filtered BC); ``uses_offline_data``: False where the batches need entries demonstrations
+    lack (DSRL's noise). The loss is a :class:`~l1flow_rl.ChunkCriticLoss`, or a plain TorchRL
+    ``LossModule`` with ``actor`` and ``rl_horizon`` where there is no critic (filtered BC)."""
 
     name: str
-    loss_cls: type[ChunkCriticLoss]
+    loss_cls: type[LossModule]
     settings: type
-    build: Callable[[L1FlowActor, DictConfig], ChunkCriticLoss]
-    start_actor: Callable[[ChunkCriticLoss], nn.Module]
+    build: Callable[[L1FlowActor, DictConfig], LossModule]
+    start_actor: Callable[[LossModule], nn.Module]
     online_keys: tuple[str, ...] = ()
     online_anchor_key: str | None = None
+    online_terminated_only: bool = False
     uses_offline_data: bool = True
 
     def check(self, cfg: DictConfig) -> list[str]:
@@ -182,6 +192,12 @@ def _flow(loss) -> L1FlowActor:
 
 register_finetune_algorithm(FinetuneAlgorithm("qc", QCLoss, QCSettings, _build_qc, _flow))
 register_finetune_algorithm(FinetuneAlgorithm("fql", FQLLoss, FQLSettings, _build_fql, _flow))
+
+
+def _build_filtered_bc(flow: L1FlowActor, cfg: DictConfig) -> FilteredBCLoss:
+    return FilteredBCLoss(flow, rl_horizon=int(cfg.rl_horizon) or None)
+
+
 _STEERING = {
     "start_actor": lambda loss: loss.actor.prior(),
     # the chunk's steering input at each step, and the wrapper's step count (1 where a chunk starts)
@@ -193,4 +209,14 @@ _STEERING = {
 register_finetune_algorithm(FinetuneAlgorithm("dsrl", DSRLLoss, DSRLSettings, _build_dsrl, **_STEERING))
 register_finetune_algorithm(
     FinetuneAlgorithm("residual", DSRLLoss, ResidualSettings, _build_residual, **_STEERING)
+)
+register_finetune_algorithm(
+    FinetuneAlgorithm(
+        "filtered_bc",
+        FilteredBCLoss,
+        FilteredBCSettings,
+        _build_filtered_bc,
+        _flow,
+        online_terminated_only=True,
+    )
 )

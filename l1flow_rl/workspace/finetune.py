@@ -71,7 +71,8 @@ def update(loss, optimizer: torch.optim.Optimizer, target_update, batch: TensorD
     optimizer.zero_grad(set_to_none=True)
     total.backward()
     optimizer.step()
-    target_update.step()
+    if target_update is not None:
+        target_update.step()
     return {k: v.detach() for k, v in out.items()}
 
 
@@ -144,7 +145,9 @@ def run_finetune(cfg: DictConfig) -> int:
         start = algorithm.start_actor(loss)
         acting = ActingSwitch(start, loss.actor)
         optimizer = torch.optim.Adam([p for p in loss.parameters() if p.requires_grad], lr=float(fcfg.lr))
-        target_update = SoftUpdate(loss, tau=float(fcfg.tau))
+        # a loss without critics (filtered BC) has no targets to move
+        has_targets = hasattr(loss, "target_qvalue_network_params")
+        target_update = SoftUpdate(loss, tau=float(fcfg.tau)) if has_targets else None
         buffers = RLBuffers(
             cfg,
             episodes,
@@ -152,6 +155,7 @@ def run_finetune(cfg: DictConfig) -> int:
             seed=int(cfg.seed),
             online_keys=algorithm.online_keys,
             online_anchor_key=algorithm.online_anchor_key,
+            online_terminated_only=algorithm.online_terminated_only,
         )
         progress = {"offline_updates": 0, "online_updates": 0, "env_steps": 0, "rounds": 0, "started": False}
         saved = {"buffer": None, "describe_start": False}
@@ -250,6 +254,8 @@ def run_finetune(cfg: DictConfig) -> int:
                             "env_steps_per_s": frames / collect_s,
                             "updates": updates,
                             "updates_per_s": updates / update_s if updates else None,
+                            "online_windows": buffers.online_windows(),
+                            "demo_only_batches": buffers.demo_only_batches,
                         }
                         run.records["rounds"].append(record)
                         numbers = {k: float(v) for k, v in record.items() if isinstance(v, (int, float))}

@@ -72,6 +72,9 @@ class RLBuffers:
             algorithm's, e.g. DSRL's noise).
         online_anchor_key: online windows start only where this stored entry is 1 (DSRL's chunk
             starts); None: at every step.
+        online_terminated_only: online windows only in episodes that ended in a terminal state
+            (success here; filtered behaviour cloning). Until one has, batches are the demonstrations'
+            alone, counted in :attr:`demo_only_batches`.
     """
 
     def __init__(
@@ -82,6 +85,7 @@ class RLBuffers:
         seed: int,
         online_keys: tuple[str, ...] = (),
         online_anchor_key: str | None = None,
+        online_terminated_only: bool = False,
     ) -> None:
         ocfg = cfg.online
         if not 0.0 <= ocfg.offline_fraction < 1.0:
@@ -116,7 +120,12 @@ class RLBuffers:
                 None,
                 seed=seed + 1,
                 capacity=max(online_capacity, 1),
-                **{**common, "keys": online, "anchor_key": online_anchor_key},
+                **{
+                    **common,
+                    "keys": online,
+                    "anchor_key": online_anchor_key,
+                    "terminated_episodes_only": online_terminated_only,
+                },
             )
 
         if self.mixing == "seed":
@@ -148,12 +157,20 @@ class RLBuffers:
             self.mixed = self.online
         self.batch_size = int(cfg.finetune.batch_size)
         self.online_steps_stored = 0
+        self.demo_only_batches = 0
 
     def sample_offline(self) -> TensorDictBase:
         return self.offline.sample(self.batch_size)
 
     def sample_online(self) -> TensorDictBase:
+        if self.online_windows() == 0 and self.mixed is not self.online:
+            self.demo_only_batches += 1  # no qualifying online episode yet: logged, not hidden
+            return self.offline.sample(self.batch_size)
         return self.mixed.sample()
+
+    def online_windows(self) -> int:
+        """Windows the online episodes give now (0 before any qualifies)."""
+        return self.online.sampler.window_count(self.online.storage)
 
     def add_collected(self, batch: TensorDictBase) -> int:
         """Store a collector round: finished episodes, then (round end) the unfinished ones as
@@ -170,12 +187,14 @@ class RLBuffers:
             "offline_rng": get_buffer_rng(self.offline),
             "online_rng": get_buffer_rng(self.online),
             "online_steps_stored": self.online_steps_stored,
+            "demo_only_batches": self.demo_only_batches,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         set_buffer_rng(self.offline, state["offline_rng"])
         set_buffer_rng(self.online, state["online_rng"])
         self.online_steps_stored = int(state["online_steps_stored"])
+        self.demo_only_batches = int(state.get("demo_only_batches", 0))  # absent before filtered BC
 
     def dump_online(self, directory: Path) -> None:
         """The online buffer (storage, writer, generator) under ``directory``, written atomically."""
