@@ -33,8 +33,7 @@ class FilteredBCLoss(LossModule):
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict
-        >>> from l1flow_rl import L1FlowActor
-        >>> from l1flow_rl.objectives.filtered_bc import FilteredBCLoss
+        >>> from l1flow_rl import FilteredBCLoss, L1FlowActor
         >>> flow = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
         >>> loss_fn = FilteredBCLoss(flow)
         >>> td = TensorDict({"observation": torch.randn(4, 2, 5),
