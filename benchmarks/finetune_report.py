@@ -2,7 +2,8 @@
 QC / FQL / DSRL update's time goes, and env steps/s with each algorithm's acting module;
 ``finetune_online_*.json`` (``bench_finetune_online``): success against env steps per algorithm beside
 the control arms; ``noise_authority*.json`` (``bench_noise_authority``): how far a steering policy's
-input noise moves each checkpoint's executed actions.
+input noise moves each checkpoint's executed actions; ``critic_bias_*.json`` (``bench_critic_bias``): the
+critics' value of a run's replay data against its Monte-Carlo value, per critic setting.
 
 For ``benchmarks.report``'s ``GROUPS["Fine-tuning"]``, the entry
 ``(r"finetune_cost_.*\\.json", "Fine-tuning: cost of an update and of acting", render_finetune_cost)``.
@@ -10,7 +11,7 @@ For ``benchmarks.report``'s ``GROUPS["Fine-tuning"]``, the entry
 
 from __future__ import annotations
 
-__all__ = ["render_finetune_cost", "render_finetune_online", "render_noise_authority"]
+__all__ = ["render_critic_bias", "render_finetune_cost", "render_finetune_online", "render_noise_authority"]
 
 #: the parts of an update the bench times, in the table's column order
 _PARTS = ("update", "targets", "proposals_2nfe", "critic_fwd_bwd", "actor_fwd_bwd", "bc_fwd_bwd")
@@ -144,4 +145,46 @@ def render_noise_authority(data: dict) -> str:
             f"{', '.join(stepped)}: the sampler draws noise at every step; it is held fixed across w (only "
             "the initial noise is steered) and its own spread is the file's `std_step_noise`.",
         ]
+    return "\n".join(lines)
+
+
+def _spread(stat: dict) -> str:
+    return f"{stat['mean']:.2f} ({stat['min']:.2f}, {stat['max']:.2f})"
+
+
+def render_critic_bias(data: dict) -> str:
+    y = data["yardstick"]
+    points = data["report_at"]
+    last_point = points[-1]
+    seeds = data["seeds"]
+    lines = [
+        f"Run `{data['run']}` ({data['task']}, {data['algorithm']}): its online buffer `{data['dump']}` "
+        f"({data['env_steps']:,} env steps) replayed offline by a fresh loss per setting, "
+        f"{data['updates']:,} updates at batch {data['batch_size']}, seeds {', '.join(map(str, seeds))}. "
+        "Q_data: the critics' mean value of the batch's windows at that update (0: the fresh critics), "
+        "mean over seeds (min, max). The yardstick, the windows' Monte-Carlo value (the "
+        f"{y['reward']} reward discounted to the episode's end, gamma {y['gamma']:g}), is "
+        f"**{y['mc_mean']:.3f}** over {y['windows']:,} windows of {y['episodes']:,} episodes; "
+        f"{y['truncated_fraction']:.0%} of them lie in episodes that ended truncated (their tail counts 0: "
+        f"a lower bound), {y['success_fraction']:.0%} in episodes that succeeded.",
+        "",
+        "| setting | critics | "
+        + " | ".join(f"Q_data @{p:,}" for p in points)
+        + f" | target @{last_point:,} | Q_actor @{last_point:,} | s/update |",
+        "|---|---|" + "---|" * (len(points) + 3),
+    ]
+    for name, c in data["configs"].items():
+        by_update = {row["update"]: row for row in c["mean"]}
+        last = by_update.get(last_point, {})
+        s = c["settings"]
+        drawn = f", min of {s['target_critics']} drawn" if s["target_critics"] else f", {s['q_agg']}"
+        critics = f"{s['num_critics']} x {'x'.join(map(str, s['critic_hidden_dims']))}{drawn}"
+        cells = [_spread(by_update[p]["q_data_mean"]) if p in by_update else "–" for p in points]
+        cells += [_spread(last[k]) if k in last else "–" for k in ("target_mean", "q_actor_mean")]
+        cells.append(f"{last['s_per_update']['mean']:.3g}" if last else "–")
+        own = f" (yardstick {c['yardstick']['mc_mean']:.3f})" if c.get("yardstick") else ""
+        runs = f" ({len(c['seeds'])} of {len(seeds)} seeds)" if len(c["seeds"]) < len(seeds) else ""
+        lines.append(f"| {name}{own}{runs} | {critics} | " + " | ".join(cells) + " |")
+    if not data.get("finished", True):
+        lines += ["", "The file is partial: its script was still running (or stopped) when it was saved."]
     return "\n".join(lines)

@@ -24,7 +24,12 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.export_report import render_export_latency
-from benchmarks.finetune_report import render_finetune_cost, render_finetune_online, render_noise_authority
+from benchmarks.finetune_report import (
+    render_critic_bias,
+    render_finetune_cost,
+    render_finetune_online,
+    render_noise_authority,
+)
 from benchmarks.sweep import convergence_steps
 from l1flow_rl.workspace.run_clock import CPU_SCOPE
 
@@ -558,6 +563,11 @@ GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
             r"noise_authority.*\.json",
             "Steering authority of the input noise (what DSRL can move)",
             render_noise_authority,
+        ),
+        (
+            r"critic_bias_.*\.json",
+            "Critic bias: Q on the replay data against its Monte-Carlo value",
+            render_critic_bias,
         ),
         (
             r"flow_q_.*\.json",
