@@ -190,8 +190,8 @@ class NoiseActor(ExecutesChunks, TensorDictModuleBase):
         if self.residual_scale is None:
             x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), noise)
         else:
-            zeros = torch.zeros(noise.shape[0], policy.pred_horizon, policy.action_dim, dtype=cond.dtype)
-            x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), zeros.to(cond.device))
+            zeros = cond.new_zeros(noise.shape[0], policy.pred_horizon, policy.action_dim)
+            x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), zeros)
             start = policy.obs_horizon - 1
             x1[:, start : start + policy.action_steps] += self.residual_scale * noise
         return policy.action_normalizer.unnormalize(x1)

@@ -186,16 +186,16 @@ def _build_residual(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
     return _build_steering(flow, cfg, cfg.residual, float(cfg.residual.residual_scale))
 
 
+def _build_filtered_bc(flow: L1FlowActor, cfg: DictConfig) -> FilteredBCLoss:
+    return FilteredBCLoss(flow, rl_horizon=int(cfg.rl_horizon) or None)
+
+
 def _flow(loss) -> L1FlowActor:
     return loss.flow
 
 
 register_finetune_algorithm(FinetuneAlgorithm("qc", QCLoss, QCSettings, _build_qc, _flow))
 register_finetune_algorithm(FinetuneAlgorithm("fql", FQLLoss, FQLSettings, _build_fql, _flow))
-
-
-def _build_filtered_bc(flow: L1FlowActor, cfg: DictConfig) -> FilteredBCLoss:
-    return FilteredBCLoss(flow, rl_horizon=int(cfg.rl_horizon) or None)
 
 
 _STEERING = {

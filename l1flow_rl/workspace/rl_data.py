@@ -163,7 +163,7 @@ class RLBuffers:
         return self.offline.sample(self.batch_size)
 
     def sample_online(self) -> TensorDictBase:
-        if self.online_windows() == 0 and self.mixed is not self.online:
+        if self.mixed is not self.online and self.online_windows() == 0:
             self.demo_only_batches += 1  # no qualifying online episode yet: logged, not hidden
             return self.offline.sample(self.batch_size)
         return self.mixed.sample()
