@@ -105,35 +105,51 @@ def _interval(ci: list | None) -> str:
 
 
 def render_main_job(d: dict) -> str:
-    seeds = d.get("eval_seeds") or {}
-    split = f"{d.get('eval_split', '?')} seeds from {seeds.get('first', '?')}" if seeds else "–"
-    return _table(
-        [
-            "task",
-            "wall s",
-            "of 15-min budget",
-            "demos s",
-            "train s",
-            "steps",
-            "success_once",
-            "95 % interval",
-            "episodes",
-            "seeds",
-        ],
-        [
+    """One row per fresh run of the plain command, and the verdict over all of them."""
+    rows = []
+    for r in d["runs"]:
+        seeds = r.get("eval_seeds") or {}
+        split = f"{r.get('eval_split', '?')} seeds from {seeds.get('first', '?')}" if seeds else "–"
+        rows.append(
             [
-                "maniskill_pushcube (state)",
-                d["wall_seconds"],
-                d["wall_over_budget"],
-                d.get("demo_seconds"),
-                d.get("train_seconds"),
-                d.get("steps"),
-                d["success_once"],
-                _interval(d.get("success_once_ci95")),
-                d["eval_episodes"],
+                r["seed"],
+                r["wall_seconds"],
+                r["wall_over_budget"],
+                r.get("demo_seconds"),
+                r.get("train_seconds"),
+                r.get("cpu_seconds"),
+                r.get("steps"),
+                ", ".join(f"{v:.2f}" for _, v in r.get("validation", [])) or "–",
+                r["success_once"],
+                _interval(r.get("success_once_ci95")),
+                r["eval_episodes"],
                 split,
             ]
+        )
+    table = _table(
+        [
+            "training seed",
+            "wall s",
+            f"of {d['budget_seconds'] / 60:.0f}-min budget",
+            "demos s",
+            "train s",
+            "CPU s",
+            "steps",
+            "validation curve",
+            "test success_once",
+            "95 % interval",
+            "episodes",
+            "test seeds",
         ],
+        rows,
+    )
+    verdict = "meets" if d["meets_targets"] else "does not meet"
+    return (
+        f"{table}\n\nManiSkill PushCube (state), the plain `l1flow-rl train`, each run from a fresh data "
+        f"directory (demonstrations made again). Mean success_once {d['success_once_mean']:.3f}, lowest "
+        f"{d['success_once_min']:.2f}, longest wall {d['wall_seconds_max']:,.0f} s: the job {verdict} its "
+        f"targets (success_once ≥ {d['target_success_once']} over ≥ {d['target_episodes']} test episodes "
+        f"within {d['budget_seconds'] / 60:.0f} minutes, in every run)."
     )
 
 

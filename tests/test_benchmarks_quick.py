@@ -455,27 +455,45 @@ def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
     from benchmarks import bench_main_job
 
     out = tmp_path / "main_job.json"
-    assert bench_main_job.main(["--quick", "--out", str(out), "--workdir", str(tmp_path / "work")]) == 0
-    figures = json.loads(out.read_text())
-    assert figures["quick"] is True and figures["steps"] == 4 and figures["eval_episodes"] == 2
-    assert 0.0 <= figures["success_once"] <= 1.0 and figures["wall_seconds"] > 0
-    assert figures["wall_over_budget"] == pytest.approx(figures["wall_seconds"] / 480, abs=1e-3)
-    assert figures["meets_targets"] is False  # 2 episodes can never meet the 100-episode target
-    # --reuse reads the finished run back instead of training again
-    again = tmp_path / "again.json"
-    argv = ["--quick", "--reuse", "--out", str(again), "--workdir", str(tmp_path / "work")]
+    argv = ["--quick", "--seeds", "0", "1", "--out", str(out), "--workdir", str(tmp_path / "work")]
     assert bench_main_job.main(argv) == 0
-    assert json.loads(again.read_text())["success_once"] == figures["success_once"]
+    figures = json.loads(out.read_text())
+    assert figures["quick"] is True and figures["seeds"] == [0, 1] and len(figures["runs"]) == 2
+    for r in figures["runs"]:
+        assert r["steps"] == 4 and r["eval_episodes"] == 2 and r["wall_seconds"] > 0
+        assert 0.0 <= r["success_once"] <= 1.0
+        assert r["wall_over_budget"] == pytest.approx(r["wall_seconds"] / 480, abs=1e-3)
+        assert r["meets_targets"] is False  # 2 episodes can never meet the 100-episode target
+    assert figures["success_once_min"] == min(r["success_once"] for r in figures["runs"])
+    assert figures["wall_seconds_max"] == max(r["wall_seconds"] for r in figures["runs"])
+    assert figures["meets_targets"] is False and out.with_suffix(".png").stat().st_size > 0
+    # the runs' seeds reach the CLI: each run directory records its own
+    for seed in (0, 1):
+        assert f"seed: {seed}\n" in (tmp_path / "work" / f"seed{seed}" / "run" / "config.yaml").read_text()
+    from benchmarks.report import render_main_job
+
+    table = render_main_job(figures)
+    assert table.count("\n| ") == 2 and "the job does not meet its targets" in table  # one row per run
+    # --reuse reads the finished runs back instead of training again; a missing run is refused
+    again = tmp_path / "again.json"
+    work = ["--workdir", str(tmp_path / "work")]
+    argv = ["--quick", "--reuse", "--seeds", "0", "1", "--out", str(again), *work]
+    assert bench_main_job.main(argv) == 0
+    assert json.loads(again.read_text())["runs"][1]["success_once"] == figures["runs"][1]["success_once"]
+    argv = ["--quick", "--reuse", "--seeds", "5", "--out", str(again), *work]
+    assert bench_main_job.main(argv) == 2
+    with pytest.raises(SystemExit):  # the seeds are the script's: a seed= override is refused
+        bench_main_job.main(["--quick", "--out", str(again), "seed=3"])
     # the same run recorded as a results file by collect_runs; an unfinished run is refused
     from benchmarks import collect_runs
     from benchmarks.report import render_training_runs
 
-    run_dir = tmp_path / "work" / "run"
+    run_dir = tmp_path / "work" / "seed0" / "run"
     assert collect_runs.main(["--name", "t", "--results", str(tmp_path), str(tmp_path / "nothing")]) == 2
     assert collect_runs.main(["--name", "t", "--results", str(tmp_path), str(run_dir)]) == 0
     (record,) = json.loads((tmp_path / "t.json").read_text())["runs"]
     assert (record["task"], record["policy"], record["steps"]) == ("maniskill_pushcube", "l1flow", 4)
-    assert record["success_once"] == figures["success_once"] and record["episodes"] == 2
+    assert record["success_once"] == figures["runs"][0]["success_once"] and record["episodes"] == 2
     assert "| maniskill_pushcube | l1flow | 2 | 4 |" in render_training_runs(
         json.loads((tmp_path / "t.json").read_text())
     )
