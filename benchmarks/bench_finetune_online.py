@@ -4,12 +4,17 @@ cost figures of every run in one JSON and one figure per task.
 
     .venv/bin/python -m benchmarks.bench_finetune_online --checkpoint runs/bc/checkpoints/best.pt \\
         --task maniskill_pickcube --algorithms dsrl --seeds 0 1 2 --steps 100000 \\
-        --control bc_start=runs/bc continued_bc=runs/bc_longer
+        --control bc_start=runs/bc --continued-bc-updates 8000
 
 The runs are ``l1flow-rl finetune finetune=<algorithm> ...`` with the preset's defaults, except the
 per-algorithm budget overrides in :data:`CPU_BUDGET` (each says why: what the 2-core cost figures of
 ``bench_finetune_cost.py`` allow); ``--override`` adds more to every run. ``--collect-only`` reads
 finished runs again.
+
+``--continued-bc-updates N`` adds the control that separates "online data" from "more updates": per
+seed, N updates of the flow's own L1 Flow loss on the demonstrations alone, from the same checkpoint
+with the same optimiser and batch (filtered BC's offline phase, no env step), validated 4 times; its
+test figure (best-validated, the start competing) is a control arm with mean and spread over seeds.
 """
 
 from __future__ import annotations
@@ -53,6 +58,42 @@ def run_one(algorithm: str, seed: int, args, run_dir: Path) -> list[str]:
         *CPU_BUDGET[algorithm],
         *args.override,
     ]
+
+
+def continued_bc_cmd(seed: int, args, run_dir: Path) -> list[str]:
+    """The continued-BC control: filtered BC's offline phase only (demonstrations, no env step)."""
+    updates = args.continued_bc_updates
+    return [
+        sys.executable,
+        "-m",
+        "l1flow_rl.cli",
+        "finetune",
+        "finetune=filtered_bc",
+        f"checkpoint={args.checkpoint}",
+        f"task={args.task}",
+        f"run_dir={run_dir}",
+        "online.steps=0",
+        f"offline.steps={updates}",
+        f"offline.eval_every={max(updates // 4, 1)}",
+        f"eval.episodes={args.test_episodes}",
+        f"eval.val_episodes={args.val_episodes}",
+        f"seed={seed}",
+        *args.override,
+    ]
+
+
+def seeded_control(per_seed: dict[int, dict]) -> dict:
+    """A control arm run once per seed: each seed's figures and the mean and spread of their tests."""
+    tests = [c["test"]["success_once"] for c in per_seed.values()]
+    return {
+        "seeds": {str(s): c for s, c in per_seed.items()},
+        "test": {
+            "success_once": sum(tests) / len(tests),
+            "min": min(tests),
+            "max": max(tests),
+            "episodes": next(iter(per_seed.values()))["test"]["episodes"],
+        },
+    }
 
 
 def read_control(run_dir: Path) -> dict:
@@ -160,8 +201,12 @@ def plot(data: dict, out: Path) -> None:
             x, [c["min"] for c in curve], [c["max"] for c in curve], alpha=0.2, color=line.get_color()
         )
     for k, (name, control) in enumerate(data["controls"].items()):
-        value = control["test"]["success_once"]
-        ax.axhline(value, ls="--", lw=1, color=f"C{k + 5}", label=f"{name} (test {value:.2f})")
+        test = control["test"]
+        seeds = f", {len(control['seeds'])} seeds" if "seeds" in control else ""
+        label = f"{name} (test {test['success_once']:.2f}{seeds})"
+        ax.axhline(test["success_once"], ls="--", lw=1, color=f"C{k + 5}", label=label)
+        if "seeds" in control:  # its tests' min-max
+            ax.axhspan(test["min"], test["max"], alpha=0.1, color=f"C{k + 5}")
     ax.set_xlabel("environment steps")
     ax.set_ylabel("validation success_once")
     ax.set_ylim(-0.05, 1.05)
@@ -190,6 +235,12 @@ def main(argv: list[str] | None = None) -> int:
         metavar="NAME=RUN_DIR",
         help="control arms read from finished runs' eval.json (the BC start, continued BC, ...)",
     )
+    parser.add_argument(
+        "--continued-bc-updates",
+        type=int,
+        default=0,
+        help="per seed, a continued-BC control of this many demonstration-only updates from the checkpoint",
+    )
     parser.add_argument("--jobs", type=int, default=1, help="runs at once")
     parser.add_argument("--root", default="runs/bench_finetune_online")
     parser.add_argument("--override", nargs="*", default=[])
@@ -204,19 +255,32 @@ def main(argv: list[str] | None = None) -> int:
         controls[name] = read_control(Path(run_dir))
     root = Path(args.root)
     dirs = {(a, s): root / f"{args.task}_{a}_seed{s}" for a in args.algorithms for s in args.seeds}
+    control_dirs = {s: root / f"{args.task}_continued_bc_seed{s}" for s in args.seeds}
+    commands = {key: run_one(key[0], key[1], args, d) for key, d in dirs.items()}
+    if args.continued_bc_updates:
+        commands.update({("continued_bc", s): continued_bc_cmd(s, args, d) for s, d in control_dirs.items()})
+        dirs.update({("continued_bc", s): d for s, d in control_dirs.items()})
     if not args.collect_only:
-        pending = list(dirs.items())
+        pending = [(key, dirs[key]) for key in commands if not (dirs[key] / "eval.json").is_file()]
         running: list[tuple[tuple[str, int], subprocess.Popen]] = []
         while pending or running:
             while pending and len(running) < args.jobs:
                 (name, seed), run_dir = pending.pop(0)
                 run_dir.parent.mkdir(parents=True, exist_ok=True)
                 log = open(run_dir.parent / f"{run_dir.name}.log", "w")  # noqa: SIM115 (closed with the process)
-                cmd = run_one(name, seed, args, run_dir)
-                running.append(((name, seed), subprocess.Popen(cmd, stdout=log, stderr=log)))
+                running.append(
+                    ((name, seed), subprocess.Popen(commands[(name, seed)], stdout=log, stderr=log))
+                )
             key, proc = running.pop(0)
             if proc.wait() != 0:
                 print(f"{key} failed (exit {proc.returncode}); see {dirs[key]}.log")
+    if args.continued_bc_updates:
+        finished = {s: d for s, d in control_dirs.items() if (d / "eval.json").is_file()}
+        if finished:
+            controls["continued_bc"] = {
+                **seeded_control({s: read_control(d) for s, d in finished.items()}),
+                "updates": args.continued_bc_updates,
+            }
     readable = lambda d: (d / "eval.json").is_file() or (d / "checkpoints" / "latest.pt").is_file()  # noqa: E731
     algorithms = {}
     for a in args.algorithms:

@@ -71,6 +71,13 @@ def render_finetune_online(data: dict) -> str:
     ]
     for name, control in data["controls"].items():
         test = control["test"]
+        if "seeds" in control:  # a control run once per seed (bench_finetune_online's continued BC)
+            updates = f", {control['updates']:,} updates" if control.get("updates") else ""
+            lines.append(
+                f"| {name}{updates} | {len(control['seeds'])} | {_rate(test['success_once'])} "
+                f"({_rate(test['min'])}-{_rate(test['max'])}; {test['episodes']} episodes) | – | – | – |"
+            )
+            continue
         lines.append(
             f"| {name} | 1 | {_rate(test['success_once'])} ({test['episodes']} episodes) | – | – | – |"
         )

@@ -234,3 +234,27 @@ def test_filtered_bc_trains_the_flow_on_demonstrations_and_successful_episodes_o
         float(line.split(",")[1]) for line in (logged / "episodes_succeeded.csv").read_text().split()
     ]
     assert len(windows) == 2 and (windows[-1] > 0) == (sum(succeeded) > 0), (windows, succeeded, rounds)
+
+
+def test_the_continued_bc_control_trains_on_demonstrations_without_an_env_step(
+    tmp_path, data_dir, bc_checkpoint
+):
+    """bench_finetune_online's continued-BC control: filtered BC's offline phase alone, validated."""
+    from benchmarks.bench_finetune_online import continued_bc_cmd
+
+    run_dir = tmp_path / "continued_bc"
+    args = type(
+        "Args", (), {"continued_bc_updates": 4, "checkpoint": bc_checkpoint, "task": "maniskill_pushcube"}
+    )
+    args.test_episodes, args.val_episodes, args.override = 2, 1, [f"data_dir={data_dir}", *FT[-2:]]
+    cmd = continued_bc_cmd(0, args, run_dir)
+    assert cmd[3:5] == ["finetune", "finetune=filtered_bc"] and "online.steps=0" in cmd
+    assert main([*cmd[3:], "finetune.batch_size=16"]) == 0
+    state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    assert state["progress"]["offline_updates"] == 4 and state["progress"]["env_steps"] == 0
+    history = json.loads((run_dir / "history.json").read_text())
+    phases = [(e.get("phase"), e.get("updates")) for e in history["evals"] if e.get("split") == "val"]
+    assert phases[:2] == [("start", 0), ("offline", 1)] and ("offline", 4) in phases, phases
+    bc = load_checkpoint(bc_checkpoint)
+    assert any(not torch.equal(v, bc["ema"][k]) for k, v in state["model"].items())
+    assert json.loads((run_dir / "eval.json").read_text())["episodes"] == 2

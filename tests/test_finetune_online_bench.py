@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from benchmarks.bench_finetune_online import aggregate, read_control
+from benchmarks.bench_finetune_online import aggregate, read_control, seeded_control
 from benchmarks.finetune_report import render_finetune_online
 
 
@@ -38,6 +38,7 @@ def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
     (tmp_path / "summary.json").write_text(json.dumps({"steps": 2000, "cpu_seconds": 300.0}))
     control = read_control(tmp_path)
     assert control["test"]["success_once"] == 0.18 and control["steps"] == 2000
+    second = {**control, "test": {"success_once": 0.3, "episodes": 100}}  # a second seed's control
     runs = {0: _run([(0, 0.18), (20_000, 0.3)], 0.32)}
     data = {
         "task": "maniskill_pickcube",
@@ -45,13 +46,21 @@ def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
         "eval_every": 20_000,
         "val_episodes": 50,
         "test_episodes": 100,
-        "controls": {"bc_start": control},
+        "controls": {
+            "bc_start": control,
+            "continued_bc": {
+                **seeded_control({0: control, 1: second}),
+                "updates": 8000,
+            },
+        },
         "algorithms": {
             "dsrl": {"budget_overrides": ["x=1"], "runs": {"0": runs[0]}, "aggregate": aggregate(runs)}
         },
     }
     table = render_finetune_online(data)
     assert "| bc_start | 1 | 0.18 (100 episodes) |" in table
+    # a control run per seed: its mean and spread, and its update count
+    assert "| continued_bc, 8,000 updates | 2 | 0.24 (0.18-0.30; 100 episodes) |" in table
     assert "| dsrl | 1 | 0.32 (0.32-0.32) | 0k: 0.18, 20k: 0.30 | 200 | 10 |" in table
     assert "dsrl: `x=1`" in table
 
