@@ -59,6 +59,18 @@ def _mean(values: list[float]) -> str:
     return f"{sum(values) / len(values):.3g}" if values else "–"
 
 
+def _control_curve(runs) -> str:
+    """A seeded control's validation (mean over seeds) at each of its update counts: its runs record
+    their validations in the test's selection (no env steps: the column says updates)."""
+    per_step: dict[int, list[float]] = {}
+    for run in runs:
+        for e in (run["test"].get("selection") or {}).get("evaluations", []):
+            per_step.setdefault(int(e["step"]), []).append(float(e["success_once"]))
+    if not per_step:
+        return "–"
+    return ", ".join(f"{k // 1000}k upd.: {sum(v) / len(v):.2f}" for k, v in sorted(per_step.items()))
+
+
 def render_finetune_online(data: dict) -> str:
     lines = [
         f"Task {data['task']}, from `{data['checkpoint']}`; validation {data['val_episodes']} episodes every "
@@ -75,7 +87,8 @@ def render_finetune_online(data: dict) -> str:
             updates = f", {control['updates']:,} updates" if control.get("updates") else ""
             lines.append(
                 f"| {name}{updates} | {len(control['seeds'])} | {_rate(test['success_once'])} "
-                f"({_rate(test['min'])}-{_rate(test['max'])}; {test['episodes']} episodes) | – | – | – |"
+                f"({_rate(test['min'])}-{_rate(test['max'])}; {test['episodes']} episodes) | "
+                f"{_control_curve(control['seeds'].values())} | – | – |"
             )
             continue
         lines.append(

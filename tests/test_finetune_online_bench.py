@@ -38,7 +38,12 @@ def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
     (tmp_path / "summary.json").write_text(json.dumps({"steps": 2000, "cpu_seconds": 300.0}))
     control = read_control(tmp_path)
     assert control["test"]["success_once"] == 0.18 and control["steps"] == 2000
-    second = {**control, "test": {"success_once": 0.3, "episodes": 100}}  # a second seed's control
+    # a second seed's control, with the validations its test's selection records
+    evaluations = [{"step": 0, "success_once": 0.2}, {"step": 2000, "success_once": 0.3}]
+    second = {
+        **control,
+        "test": {"success_once": 0.3, "episodes": 100, "selection": {"evaluations": evaluations}},
+    }
     runs = {0: _run([(0, 0.18), (20_000, 0.3)], 0.32)}
     data = {
         "task": "maniskill_pickcube",
@@ -60,7 +65,10 @@ def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
     table = render_finetune_online(data)
     assert "| bc_start | 1 | 0.18 (100 episodes) |" in table
     # a control run per seed: its mean and spread, and its update count
-    assert "| continued_bc, 8,000 updates | 2 | 0.24 (0.18-0.30; 100 episodes) |" in table
+    assert (
+        "| continued_bc, 8,000 updates | 2 | 0.24 (0.18-0.30; 100 episodes) | 0k upd.: 0.20, 2k upd.: 0.30 |"
+        in table
+    )
     assert "| dsrl | 1 | 0.32 (0.32-0.32) | 0k: 0.18, 20k: 0.30 | 200 | 10 |" in table
     assert "dsrl: `x=1`" in table
 
