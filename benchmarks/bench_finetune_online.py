@@ -8,8 +8,9 @@ cost figures of every run in one JSON and one figure per task.
 
 The runs are ``l1flow-rl finetune finetune=<algorithm> ...`` with the preset's defaults, except the
 per-algorithm budget overrides in :data:`CPU_BUDGET` (each says why: what the 2-core cost figures of
-``bench_finetune_cost.py`` allow); ``--override`` adds more to every run. ``--collect-only`` reads
-finished runs again.
+``bench_finetune_cost.py`` allow); ``--override`` adds more to every run. Finished runs (their
+``eval.json``) are read back, interrupted ones resume from their last checkpoint; ``--collect-only``
+only reads.
 
 ``--continued-bc-updates N`` adds the control that separates "online data" from "more updates": per
 seed, N updates of the flow's own L1 Flow loss on the demonstrations alone, from the same checkpoint
@@ -267,10 +268,11 @@ def main(argv: list[str] | None = None) -> int:
             while pending and len(running) < args.jobs:
                 (name, seed), run_dir = pending.pop(0)
                 run_dir.parent.mkdir(parents=True, exist_ok=True)
-                log = open(run_dir.parent / f"{run_dir.name}.log", "w")  # noqa: SIM115 (closed with the process)
-                running.append(
-                    ((name, seed), subprocess.Popen(commands[(name, seed)], stdout=log, stderr=log))
-                )
+                log = open(run_dir.parent / f"{run_dir.name}.log", "a")  # noqa: SIM115 (closed with the process)
+                cmd = commands[(name, seed)]
+                if (run_dir / "checkpoints" / "latest.pt").is_file():  # an interrupted run continues exactly
+                    cmd = [*cmd, "resume=true"]
+                running.append(((name, seed), subprocess.Popen(cmd, stdout=log, stderr=log)))
             key, proc = running.pop(0)
             if proc.wait() != 0:
                 print(f"{key} failed (exit {proc.returncode}); see {dirs[key]}.log")
