@@ -27,6 +27,7 @@ import sys
 from pathlib import Path
 
 from benchmarks.common import machine_info, save_results
+from benchmarks.sweep import mean_and_spread
 
 #: budget departures from the presets on 2 shared CPU cores, with the cost figure that forces each
 CPU_BUDGET: dict[str, list[str]] = {
@@ -85,13 +86,13 @@ def continued_bc_cmd(seed: int, args, run_dir: Path) -> list[str]:
 
 def seeded_control(per_seed: dict[int, dict]) -> dict:
     """A control arm run once per seed: each seed's figures and the mean and spread of their tests."""
-    tests = [c["test"]["success_once"] for c in per_seed.values()]
+    spread = mean_and_spread([c["test"]["success_once"] for c in per_seed.values()])
     return {
         "seeds": {str(s): c for s, c in per_seed.items()},
         "test": {
-            "success_once": sum(tests) / len(tests),
-            "min": min(tests),
-            "max": max(tests),
+            "success_once": spread["mean"],
+            "min": spread["min"],
+            "max": spread["max"],
             "episodes": next(iter(per_seed.values()))["test"]["episodes"],
         },
     }

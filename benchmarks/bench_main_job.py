@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from benchmarks.common import machine_info, save_results
+from benchmarks.sweep import Run, read_history
 
 BUDGET_S = 8 * 60
 TARGET_SUCCESS = 0.95
@@ -104,8 +105,7 @@ def main(argv: list[str] | None = None) -> int:
 def _run_record(seed: int, run_dir: Path, wall: float) -> dict:
     result = json.loads((run_dir / "eval.json").read_text())
     summary = json.loads((run_dir / "summary.json").read_text())
-    history = json.loads((run_dir / "history.json").read_text())
-    validation = [[e["step"], e["success_once"]] for e in history.get("evals", []) if e.get("split") == "val"]
+    validation = [[e["step"], e["success_once"]] for e in read_history(Run(f"seed{seed}", [], run_dir))]
     return {
         "seed": seed,
         "wall_seconds": round(wall, 1),
