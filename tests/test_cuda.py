@@ -231,3 +231,23 @@ def test_train_job_on_cuda_then_eval_of_its_checkpoint_on_cpu(tmp_path, env_devi
     assert main(["eval", *rescore, f"run_dir={eval_dir}"]) == 0
     rescored = json.loads((eval_dir / "eval.json").read_text())
     assert rescored["episodes"] == 3 and [e["length"] for e in rescored["per_episode"]] == [30, 30, 30]
+
+
+@pytest.mark.maniskill
+def test_finetune_online_on_cuda_steps_envs_in_cpu_workers(tmp_path):
+    # measured on an H200 (benchmarks/run_records/device14): with the collector's env made on the GPU,
+    # the first online round failed ("indices should be either on cpu or on the same device"); the envs
+    # now step on the CPU and the collector moves each step to the actor's device and back
+    pytest.importorskip("mani_skill")
+    from test_finetune_job import BC, FT
+
+    from l1flow_rl.cli import main
+    from l1flow_rl.workspace.checkpoint import load_checkpoint
+
+    data, bc_dir, ft_dir = tmp_path / "data", tmp_path / "bc", tmp_path / "ft"
+    assert main(["train", f"data_dir={data}", f"run_dir={bc_dir}", *BC]) == 0
+    checkpoint = bc_dir / "checkpoints" / "latest.pt"
+    args = [f"checkpoint={checkpoint}", f"data_dir={data}", f"run_dir={ft_dir}", *FT, "finetune=qc"]
+    assert main(["finetune", *args, "device=cuda"]) == 0
+    progress = load_checkpoint(ft_dir / "checkpoints" / "latest.pt")["progress"]
+    assert progress["env_steps"] == 80 and progress["online_updates"] == 4

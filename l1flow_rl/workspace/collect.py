@@ -71,7 +71,9 @@ class OnlineCollector:
     Args:
         cfg: the composed run config (``task``, ``policy``, ``online``).
         actor: the chunk actor (its parameters are read live: updates between rounds take effect).
-        device: where the env runs (CPU worker processes on a CPU machine).
+        device: where the actor runs. The envs step in CPU worker processes and the collector moves
+            each step's data to the actor's device and back (TorchRL's ``env_device``/``policy_device``),
+            so the rounds and the replay buffers stay on the CPU.
     """
 
     def __init__(self, cfg: DictConfig, actor: TensorDictModuleBase, device: torch.device) -> None:
@@ -89,7 +91,7 @@ class OnlineCollector:
         self.env = make_env(
             task,
             num_envs=ocfg.num_envs,
-            device=str(device),
+            device="cpu",
             obs_horizon=self.obs_horizon,
             ignore_terminations=False,
             render=False,
@@ -104,6 +106,11 @@ class OnlineCollector:
                 total_frames=-1,
                 reset_at_each_iter=True,
                 exploration_type=ExplorationType.RANDOM,
+                # measured on an H200 (benchmarks/run_records/device14): an env made on the GPU failed the
+                # collector's first call ("indices should be either on cpu or on the same device")
+                env_device="cpu",
+                policy_device=device,
+                storing_device="cpu",
             )
         self._iter = iter(self.collector)
 
