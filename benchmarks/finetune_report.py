@@ -11,7 +11,13 @@ For ``benchmarks.report``'s ``GROUPS["Fine-tuning"]``, the entry
 
 from __future__ import annotations
 
-__all__ = ["render_critic_bias", "render_finetune_cost", "render_finetune_online", "render_noise_authority"]
+__all__ = [
+    "render_critic_bias",
+    "render_finetune_cost",
+    "render_finetune_online",
+    "render_noise_authority",
+    "render_noise_draw",
+]
 
 #: the parts of an update the bench times, in the table's column order
 _PARTS = ("update", "targets", "proposals_2nfe", "critic_fwd_bwd", "actor_fwd_bwd", "bc_fwd_bwd")
@@ -208,3 +214,24 @@ def render_critic_bias(data: dict) -> str:
     if not data.get("finished", True):
         lines += ["", "The file is partial: its script was still running (or stopped) when it was saved."]
     return "\n".join(lines)
+
+
+def render_noise_draw(data: dict) -> str:
+    seeds = data["episode_seeds"]
+    rows = " | ".join(f"{r['success_once']:.2f}" for r in data["rows"])
+    head = " | ".join(f"noise seed {r['noise_seed']}" for r in data["rows"])
+    return "\n".join(
+        [
+            f"`{data['checkpoint']}` ({data['task']}): the same {data['episodes']} episodes (seeds from "
+            f"{seeds['first']}, the validation split) under several seeds of the policy's noise.",
+            "",
+            f"| {head} | mean | std over noise seeds | binomial std at the mean |",
+            "|" + "---|" * (len(data["rows"]) + 3),
+            f"| {rows} | {data['mean']:.3f} | {data['std_over_noise_seeds']:.3f} | "
+            f"{data['binomial_std_at_mean']:.3f} |",
+            "",
+            "A validation figure is one draw of the sampler's noise as much as of the episodes: a checkpoint "
+            "chosen by it is chosen partly on that draw, which is why every reported figure is a test on "
+            "held-out seeds of the chosen checkpoint.",
+        ]
+    )

@@ -29,6 +29,7 @@ from benchmarks.finetune_report import (
     render_finetune_cost,
     render_finetune_online,
     render_noise_authority,
+    render_noise_draw,
 )
 from benchmarks.sweep import convergence_steps
 from l1flow_rl.workspace.run_clock import CPU_SCOPE
@@ -579,6 +580,11 @@ GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
             r"noise_authority.*\.json",
             "Steering authority of the input noise (what DSRL can move)",
             render_noise_authority,
+        ),
+        (
+            r"noise_draw_.*\.json",
+            "Validation figures and the sampler's noise draw",
+            render_noise_draw,
         ),
         (
             r"critic_bias_.*\.json",

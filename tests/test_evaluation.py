@@ -120,6 +120,22 @@ def test_two_workers_run_the_same_seeded_episodes(env):
     assert (one["policy_calls"], two["policy_calls"]) == (3 * 8, 2 * 8)
 
 
+def test_noise_seed_changes_the_policy_noise_and_keeps_the_episodes(env):
+    # a pusher with sampled noise on its actions (drawn from the global RNG that evaluate seeds)
+    def noisy_chunk(observation: torch.Tensor) -> torch.Tensor:
+        chunk = push_chunk(observation)
+        return chunk + 0.5 * torch.randn_like(chunk)
+
+    noisy = TensorDictModule(noisy_chunk, in_keys=["observation"], out_keys=["action_chunk"])
+    default = evaluate(noisy, env, episodes=2, seed=0)
+    same = evaluate(noisy, env, episodes=2, seed=0, noise_seed=0)
+    other = evaluate(noisy, env, episodes=2, seed=0, noise_seed=1)
+    returns = lambda r: [e["return"] for e in r["per_episode"]]  # noqa: E731
+    assert returns(default) == returns(same)
+    assert [e["seed"] for e in other["per_episode"]] == [0, 1]
+    assert all(a != b for a, b in zip(returns(default), returns(other)))
+
+
 class RaiseAtStep(Transform):
     """Raises from inside env.step on its n-th call, once (e.g. a sensor or a transform failing)."""
 

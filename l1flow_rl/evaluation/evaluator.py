@@ -171,6 +171,7 @@ def evaluate(
     video_dir: str | Path | None = None,
     video_episodes: int = 0,
     video_fps: int = 20,
+    noise_seed: int | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` episodes (episode ``i`` from seed ``seed + i``) across the env's parallel envs.
 
@@ -187,6 +188,8 @@ def evaluate(
             (``SimulatorSpec.episode_metrics``, e.g. PushT's ``{"score": ("max", "reward")}``);
             reductions ``max``, ``sum``, ``last``, ``any``.
         video_dir, video_episodes: write the first ``video_episodes`` episodes as mp4 there.
+        noise_seed: seeds the policy's noise instead of ``seed`` (the episodes keep their seeds): how
+            much of a success figure is the sampler's noise draw (``benchmarks/bench_noise_draw.py``).
 
     Returns:
         The means over episodes of ``success_once``, ``success_at_end``, ``return``,
@@ -194,8 +197,8 @@ def evaluate(
         rates, Student t for means) and ``ci_method``; ``latency_ms_median``/``latency_ms_p90``
         (per policy call, i.e. per chunk); ``policy_calls``, ``network_calls`` and
         ``nfe_per_chunk`` (counted network evaluations); ``episodes``, ``errors``, ``seeds``, and
-        ``per_episode`` (seed, metrics, error per episode). Policy noise is seeded from ``seed``;
-        the caller's RNG is untouched.
+        ``per_episode`` (seed, metrics, error per episode). Policy noise is seeded from ``seed``
+        (or ``noise_seed``); the caller's RNG is untouched.
 
     Example:
         >>> from l1flow_rl import L1FlowActor, evaluate
@@ -239,7 +242,7 @@ def evaluate(
 
     try:
         with torch.random.fork_rng(devices=devices), torch.no_grad(), set_exploration_type(exploration):
-            torch.manual_seed(seed)
+            torch.manual_seed(seed if noise_seed is None else noise_seed)
             td = start_all()
             if wrapper is None:
                 executor = MultiStepActorWrapper(timed, n_steps=_chunk_length(inner, td), init_key="is_init")
