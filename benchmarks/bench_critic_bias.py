@@ -14,13 +14,16 @@ reports them) and the seconds per update so far are recorded.
 
 The yardstick (:func:`mc_values`): the Monte-Carlo value of those windows, the discounted sum of the
 rewards from the window's step to its episode's end (sparse reward: gamma^k for a success k steps
-ahead, 0 for an episode that never terminates), over the buffer's anchor rows (chunk starts for DSRL and
-residual steering) whose chunk the critic loss keeps (``chunk_valid``). It is the value of the policies
+ahead, 0 for an episode that never terminates), over the buffer's anchor rows (chunk starts for DSRL)
+whose chunk the critic loss keeps (``chunk_valid``). It is the value of the policies
 that collected the data; a truncated episode's tail is unknown and counts 0, a lower bound, so the
 fraction of windows in such episodes is reported beside it.
 
+The saved results replayed the retired residual-steering arm's buffers (its code is gone: they stay as
+records); the bench replays any run of a registered critic algorithm (DSRL, QC, FQL).
+
     OMP_NUM_THREADS=1 .venv/bin/python -m benchmarks.bench_critic_bias \\
-        --run runs/bench_finetune_online_residual/maniskill_pickcube_residual_seed0 \\
+        --run runs/bench_finetune_online/maniskill_pickcube_dsrl_seed0 \\
         --config preset="" --config redq="finetune.num_critics=10 finetune.target_critics=2" \\
         --seeds 0 1 --updates 1000 --report-at 100 250 500 1000
 """

@@ -38,7 +38,6 @@ CPU_BUDGET: dict[str, list[str]] = {
     # an update takes 0.09 s (no flow call): the preset's 0.25 updates per env step (2 per chunk decision)
     "dsrl": [],
     "filtered_bc": [],  # an L1 Flow step at batch 64 (~0.1 s), 0.084 per env step
-    "residual": [],  # DSRL's update on a residual: the same cost
 }
 
 

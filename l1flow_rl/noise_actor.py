@@ -8,9 +8,9 @@ passes through the flow, and :class:`~l1flow_rl.DSRLLoss` never evaluates it.
 Steering the noise moves the executed actions only as far as the sampler lets the noise matter. The
 2-NFE L1 Flow sampler, trained on unimodal demonstrations, is nearly deterministic in its noise
 (``benchmarks/results/noise_authority.json``: on PickCube the executed positions move ~5 % as much
-over noise draws as over states). ``residual_scale`` steers the actions instead: the executed window
-is the flow's zero-noise chunk plus ``residual_scale * w`` in normalised action units (a bounded
-residual, as Policy Decorator's), and w has the window's shape [K, A]. SAC is the same in both.
+over noise draws as over states). A bounded residual on the executed window instead (Policy
+Decorator's) was measured and retired: validation fell from 0.20 to 0.06 (PickCube) and 0.22 to 0.08
+(Can) as its actor followed the critics' extrapolation (NOTES_finetune.md).
 """
 
 from __future__ import annotations
@@ -88,15 +88,15 @@ class NoisePolicy(nn.Module):
 class PriorNoise(nn.Module):
     """The BC policy's steering input, acting with :class:`NoisePolicy`'s interface (the warm-up steps;
     log-probabilities are not defined): the flow's own input distribution, w ~ N(0, I) clipped to the
-    bound, or with ``zero`` w = 0 (a residual's: the BC chunk unchanged)."""
+    bound."""
 
-    def __init__(self, noise_shape: Sequence[int], bound: float, *, zero: bool = False) -> None:
+    def __init__(self, noise_shape: Sequence[int], bound: float) -> None:
         super().__init__()
-        self.noise_shape, self.bound, self.zero = tuple(noise_shape), float(bound), bool(zero)
+        self.noise_shape, self.bound = tuple(noise_shape), float(bound)
 
     def sample(self, obs: TensorDictBase, *, deterministic: bool = False) -> tuple[Tensor, Tensor]:
         shape = (obs.shape[0], *self.noise_shape)
-        if deterministic or self.zero:
+        if deterministic:
             w = torch.zeros(shape)
         else:
             w = torch.randn(shape).clamp(-self.bound, self.bound)
@@ -125,28 +125,22 @@ class NoiseActor(ExecutesChunks, TensorDictModuleBase):
         flow: L1FlowActor,
         noise_policy: NoisePolicy,
         *,
-        residual_scale: float | None = None,
         in_keys: Sequence[NestedKey] = ("observation",),
         out_keys: Sequence[NestedKey] = ("action_chunk", "noise_chunk"),
     ) -> None:
         super().__init__()
         self.flow = flow.requires_grad_(False)
         self.noise_policy = noise_policy
-        self.residual_scale = None if residual_scale is None else float(residual_scale)
-        expected = self._steered_shape(flow.policy, self.residual_scale)
+        expected = self._steered_shape(flow.policy)
         if tuple(noise_policy.noise_shape) != expected:
-            what = "the executed window [K, A]" if self.residual_scale else "the flow's noise [H, A]"
-            shape = list(noise_policy.noise_shape)
-            raise ValueError(f"the steering policy's shape {shape} must be {what} = {list(expected)}")
-        if self.residual_scale is not None and self.residual_scale <= 0:
-            raise ValueError(f"residual_scale must be > 0 (or None: steer the noise), got {residual_scale}")
+            shape, want = list(noise_policy.noise_shape), list(expected)
+            raise ValueError(f"the steering policy's shape {shape} must be the flow's noise [H, A] = {want}")
         self.in_keys: list[NestedKey] = list(in_keys)
         self.out_keys: list[NestedKey] = list(out_keys)
 
     @staticmethod
-    def _steered_shape(policy: ChunkPolicy, residual_scale: float | None) -> tuple[int, int]:
-        steps = policy.action_steps if residual_scale else policy.pred_horizon
-        return steps, policy.action_dim
+    def _steered_shape(policy: ChunkPolicy) -> tuple[int, int]:
+        return policy.pred_horizon, policy.action_dim
 
     @classmethod
     def from_flow(
@@ -155,22 +149,18 @@ class NoiseActor(ExecutesChunks, TensorDictModuleBase):
         *,
         bound: float = 1.5,
         hidden_dims: Sequence[int] = (512, 512, 512),
-        residual_scale: float | None = None,
     ) -> NoiseActor:
-        shape = cls._steered_shape(flow.policy, residual_scale)
+        shape = cls._steered_shape(flow.policy)
         policy = NoisePolicy(flow.policy, bound=bound, hidden_dims=hidden_dims, noise_shape=shape)
-        return cls(flow, policy.to(next(flow.policy.parameters()).device), residual_scale=residual_scale)
+        return cls(flow, policy.to(next(flow.policy.parameters()).device))
 
     def prior(self) -> NoiseActor:
         """The BC policy, writing the same keys: what the steering collects with before its first
-        update. The flow acts on w ~ N(0, I) clipped to the bound (DSRL), or with ``residual_scale`` on
-        a zero residual (a random one perturbed the BC chunk: validation 0.18 -> 0.12 on PickCube, 0.14
-        -> 0.02 on Can at residual_scale 0.1)."""
+        update: the flow acts on w ~ N(0, I) clipped to the bound (DSRL)."""
         bound = self.noise_policy.bound
         return NoiseActor(
             self.flow,
-            PriorNoise(self.noise_policy.noise_shape, bound, zero=self.residual_scale is not None),
-            residual_scale=self.residual_scale,
+            PriorNoise(self.noise_policy.noise_shape, bound),
             in_keys=self.in_keys,
             out_keys=self.out_keys,
         )
@@ -181,19 +171,11 @@ class NoiseActor(ExecutesChunks, TensorDictModuleBase):
 
     @torch.no_grad()
     def decode(self, obs: TensorDictBase, noise: Tensor) -> Tensor:
-        """The full chunk [N, H, A] (environment units) from the steering input: the flow's input noise
-        [N, H, A], or with ``residual_scale`` the residual [N, K, A] added to the executed window of the
-        flow's zero-noise chunk (normalised units)."""
+        """The full chunk [N, H, A] (environment units) decoded from the flow's input noise [N, H, A]."""
         policy = self.policy
         cond = policy.encode(obs)
         noise = noise.to(device=cond.device, dtype=cond.dtype)
-        if self.residual_scale is None:
-            x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), noise)
-        else:
-            zeros = cond.new_zeros(noise.shape[0], policy.pred_horizon, policy.action_dim)
-            x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), zeros)
-            start = policy.obs_horizon - 1
-            x1[:, start : start + policy.action_steps] += self.residual_scale * noise
+        x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), noise)
         return policy.action_normalizer.unnormalize(x1)
 
     @torch.no_grad()

@@ -112,7 +112,7 @@ def test_the_table_has_a_row_per_setting_and_the_yardstick_in_its_caption():
     data = {
         "run": "runs/x",
         "task": "t",
-        "algorithm": "residual",
+        "algorithm": "dsrl",
         "dump": "online_buffer_round3",
         "env_steps": 600,
         "updates": 10,

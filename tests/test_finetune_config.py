@@ -18,7 +18,6 @@ from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
         ("qc", QCLoss, "mean", 0.5),
         ("fql", FQLLoss, "mean", 0.5),
         ("dsrl", DSRLLoss, "min", 0.0),
-        ("residual", DSRLLoss, "min", 0.0),
     ],
 )
 def test_presets_compose_validate_and_build_their_loss(preset, loss_cls, q_agg, offline_fraction):
@@ -39,7 +38,7 @@ def test_bad_fine_tuning_settings_fail_at_config_time_naming_the_field():
     with pytest.raises(
         ConfigValidationError,
         match=r"finetune\.algorithm='sac': expected one of "
-        r"\['dsrl', 'filtered_bc', 'fql', 'qc', 'residual'\]",
+        r"\['dsrl', 'filtered_bc', 'fql', 'qc'\]",
     ):
         compose_config(["finetune=qc", "finetune.algorithm=sac"], command="finetune")
     with pytest.raises(ConfigValidationError, match=r"offline\.steps=100: finetune\.algorithm=dsrl"):

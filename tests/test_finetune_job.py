@@ -168,9 +168,8 @@ def test_a_checkpoint_of_another_task_is_refused(tmp_path, data_dir, bc_checkpoi
         )
 
 
-@pytest.mark.parametrize("algorithm", ["dsrl", "residual"])
 def test_steering_online_stores_the_chunk_input_and_leaves_the_flow_as_it_was(
-    tmp_path, data_dir, bc_checkpoint, monkeypatch, algorithm
+    tmp_path, data_dir, bc_checkpoint, monkeypatch
 ):
     from l1flow_rl.workspace.harness import Run
 
@@ -182,25 +181,22 @@ def test_steering_online_stores_the_chunk_input_and_leaves_the_flow_as_it_was(
         return original(self, actor, step, **row)
 
     monkeypatch.setattr(Run, "validate", spy)
-    run_dir = tmp_path / algorithm
+    run_dir = tmp_path / "dsrl"
     overrides = [
-        f"finetune={algorithm}",
+        "finetune=dsrl",
         "offline.steps=0",
-        f"finetune.{algorithm}.actor_hidden_dims=[32]",
+        "finetune.dsrl.actor_hidden_dims=[32]",
         "eval.episodes=0",
     ]
     assert main(_args(run_dir, data_dir, bc_checkpoint, *overrides)) == 0
-    # the start that competes for best.pt is the BC checkpoint itself, not the warm-up actor (a
-    # residual's prior perturbs the BC chunk)
+    # the start that competes for best.pt is the BC checkpoint itself, not the warm-up actor
     assert validated[0] == ("start", "L1FlowActor")
     state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
     assert state["progress"]["online_updates"] == 4 and state["progress"]["offline_updates"] == 0
     actor, _ = load_actor(run_dir / "checkpoints" / "latest.pt")
     assert isinstance(actor, NoiseActor)
     policy = actor.policy
-    window = (policy.action_steps if algorithm == "residual" else policy.pred_horizon, policy.action_dim)
-    assert actor.noise_policy.noise_shape == window
-    assert actor.residual_scale == (0.1 if algorithm == "residual" else None)
+    assert actor.noise_policy.noise_shape == (policy.pred_horizon, policy.action_dim)
     bc = load_checkpoint(bc_checkpoint)
     flow = {k[len("flow.") :]: v for k, v in state["model"].items() if k.startswith("flow.")}
     assert flow and all(torch.equal(v, bc["ema"][k]) for k, v in flow.items())  # frozen

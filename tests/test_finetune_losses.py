@@ -188,38 +188,17 @@ def test_steering_noise_stays_in_bounds_and_the_flow_stays_unchanged():
     assert torch.allclose(acted["action_chunk"], flow.policy.executable(steer.decode(obs, noise)))
 
 
-def test_residual_steering_moves_only_the_executed_window_by_the_scaled_residual():
-    torch.manual_seed(0)
+def test_the_steering_actor_and_its_critic_must_take_the_flows_noise_shape():
     flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
-    steer = NoiseActor.from_flow(flow, bound=1.5, hidden_dims=(16,), residual_scale=0.2)
-    assert steer.noise_policy.noise_shape == (4, 3)  # the executed window K x A, not the flow's noise
-    obs = flow.policy.as_obs_dict(torch.randn(5, 2, 2))
-    w = torch.rand(5, 4, 3) * 3 - 1.5
-    base = flow.policy.sample_chunk(obs, deterministic=True)  # the zero-noise chunk
-    steered = steer.decode(obs, w)
-    norm = flow.policy.action_normalizer.normalize
-    moved = norm(steered) - norm(base)
-    start = flow.policy.obs_horizon - 1
-    assert torch.allclose(moved[:, start : start + 4], 0.2 * w, atol=1e-5)
-    moved[:, start : start + 4] = 0
-    assert moved.abs().max() < 1e-5  # steps outside the window are the flow's
-    # its warm-up actor is the BC chunk itself (a zero residual)
-    acted = steer.prior()(TensorDict({"observation": torch.randn(5, 2, 2)}, [5]))
-    assert acted["noise_chunk"].abs().max() == 0
-    assert torch.allclose(
-        acted["action_chunk"],
-        flow.policy.executable(flow.policy.sample_chunk(acted["observation"], deterministic=True)),
-    )
-    # the critic values w, so SAC's loss takes it unchanged; its critic is built on the window's shape
-    critic = ChunkCritic.from_policy(flow, input_shape=(4, 3), hidden_dims=(8,), normalize_input=False)
+    steer = NoiseActor.from_flow(flow, bound=1.5, hidden_dims=(16,))
+    assert steer.noise_policy.noise_shape == (8, 3)  # the flow's whole input noise H x A
+    critic = ChunkCritic.from_policy(flow, input_shape=(8, 3), hidden_dims=(8,), normalize_input=False)
     DSRLLoss(steer, critic)
-    noise_critic = ChunkCritic.from_policy(flow, input_shape=(8, 3), hidden_dims=(8,), normalize_input=False)
-    with pytest.raises(ValueError, match=r"input_shape=\[4, 3\]"):
-        DSRLLoss(steer, noise_critic)
-    with pytest.raises(ValueError, match="residual_scale must be > 0"):
-        NoiseActor.from_flow(flow, hidden_dims=(8,), residual_scale=-1.0)
-    with pytest.raises(ValueError, match=r"must be the executed window \[K, A\] = \[4, 3\]"):
-        NoiseActor(flow, steer.prior().noise_policy.__class__((8, 3), 1.5), residual_scale=0.2)
+    window_critic = ChunkCritic.from_policy(flow, input_shape=(4, 3), hidden_dims=(8,), normalize_input=False)
+    with pytest.raises(ValueError, match=r"input_shape=\[8, 3\]"):
+        DSRLLoss(steer, window_critic)
+    with pytest.raises(ValueError, match=r"must be the flow's noise \[H, A\] = \[8, 3\]"):
+        NoiseActor(flow, steer.prior().noise_policy.__class__((4, 3), 1.5))
 
 
 def test_steering_under_the_multi_step_wrapper_gives_each_step_its_chunk_noise_and_counter():

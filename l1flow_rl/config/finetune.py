@@ -23,7 +23,6 @@ __all__ = [
     "OfflineConfig",
     "OnlineConfig",
     "QCSettings",
-    "ResidualSettings",
     "round_frames",
 ]
 
@@ -62,14 +61,6 @@ class DSRLSettings:
 
 
 @dataclass
-class ResidualSettings(DSRLSettings):
-    # SAC over a bounded residual on the executed window (normalised action units): the executed chunk is
-    # the flow's zero-noise chunk + residual_scale * w, |w| <= noise_bound. Why: the 2-NFE sampler barely
-    # depends on its noise (benchmarks/results/noise_authority.json), so steering the noise moves little.
-    residual_scale: float = 0.1
-
-
-@dataclass
 class FilteredBCSettings:
     """Filtered BC has no knob of its own: the L1 Flow loss on demonstrations and successful online
     episodes (``finetune.lr``, ``finetune.batch_size`` and the ``online`` block set its schedule)."""
@@ -77,7 +68,7 @@ class FilteredBCSettings:
 
 @dataclass
 class FinetuneConfig:
-    algorithm: str = "qc"  # a registered algorithm: qc | fql | dsrl | residual | filtered_bc
+    algorithm: str = "qc"  # a registered algorithm: qc | fql | dsrl | filtered_bc
     gamma: float = 0.99
     tau: float = 0.005  # Polyak rate of the target critics (TorchRL SoftUpdate)
     lr: float = 3.0e-4  # Adam, every network
@@ -94,7 +85,6 @@ class FinetuneConfig:
     qc: QCSettings = field(default_factory=QCSettings)
     fql: FQLSettings = field(default_factory=FQLSettings)
     dsrl: DSRLSettings = field(default_factory=DSRLSettings)
-    residual: ResidualSettings = field(default_factory=ResidualSettings)
     filtered_bc: FilteredBCSettings = field(default_factory=FilteredBCSettings)
     log_every: int = 50  # updates
 

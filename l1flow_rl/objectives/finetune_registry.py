@@ -31,7 +31,6 @@ from l1flow_rl.config.finetune import (
     FilteredBCSettings,
     FQLSettings,
     QCSettings,
-    ResidualSettings,
 )
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.noise_actor import NoiseActor
@@ -159,15 +158,9 @@ def _build_fql(flow: L1FlowActor, cfg: DictConfig) -> FQLLoss:
     )
 
 
-def _build_steering(
-    flow: L1FlowActor, cfg: DictConfig, s: DictConfig, residual_scale: float | None
-) -> DSRLLoss:
-    steer = NoiseActor.from_flow(
-        flow,
-        bound=float(s.noise_bound),
-        hidden_dims=tuple(s.actor_hidden_dims),
-        residual_scale=residual_scale,
-    )
+def _build_dsrl(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
+    s = cfg.dsrl
+    steer = NoiseActor.from_flow(flow, bound=float(s.noise_bound), hidden_dims=tuple(s.actor_hidden_dims))
     critic = _critic(flow, cfg, steer.noise_policy.noise_shape, normalize_input=False)
     return DSRLLoss(
         steer,
@@ -176,14 +169,6 @@ def _build_steering(
         init_alpha=float(s.init_alpha),
         **_common(cfg),
     )
-
-
-def _build_dsrl(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
-    return _build_steering(flow, cfg, cfg.dsrl, None)
-
-
-def _build_residual(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
-    return _build_steering(flow, cfg, cfg.residual, float(cfg.residual.residual_scale))
 
 
 def _build_filtered_bc(flow: L1FlowActor, cfg: DictConfig) -> FilteredBCLoss:
@@ -207,9 +192,6 @@ _STEERING = {
     "uses_offline_data": False,
 }
 register_finetune_algorithm(FinetuneAlgorithm("dsrl", DSRLLoss, DSRLSettings, _build_dsrl, **_STEERING))
-register_finetune_algorithm(
-    FinetuneAlgorithm("residual", DSRLLoss, ResidualSettings, _build_residual, **_STEERING)
-)
 register_finetune_algorithm(
     FinetuneAlgorithm(
         "filtered_bc",

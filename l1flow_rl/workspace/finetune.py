@@ -205,8 +205,7 @@ def run_finetune(cfg: DictConfig) -> int:
         run.begin(state, load, step=step, total=int(off.steps) + int(on.steps))
         if not progress["started"]:  # the start competes: a run never reports a policy below it
             saved["describe_start"] = True
-            # the BC checkpoint as it is saved when it wins (not the warm-up actor: a residual's prior
-            # perturbs it, 0.12 against the checkpoint's 0.18 on PickCube's validation)
+            # the BC checkpoint itself, as state() saves it when it wins (not the warm-up actor)
             run.validate(bc_actor, 0, phase="start", env_steps=0, updates=0)
             saved["describe_start"] = False
             progress["started"] = True
