@@ -6,7 +6,7 @@ same checkpoint, same episode seeds; only the noise generator differed. A checkp
 validation figure is chosen partly on this draw.
 
     python -m benchmarks.bench_noise_draw --checkpoint runs/ft_bc_can_n20/checkpoints/best.pt \\
-        --noise-seeds 0 1 2 3 --out benchmarks/results/noise_draw_robosuite_can.json
+        --out benchmarks/results/noise_draw_robosuite_can.json
 """
 
 from __future__ import annotations
@@ -38,15 +38,16 @@ def main(argv: list[str] | None = None) -> int:
     actor, cfg = load_actor(args.checkpoint, use_ema=True)
     task = task_from(cfg.task)
     rows = []
-    for noise_seed in noise_seeds:
-        env = make_env(task, num_envs=args.num_envs, obs_horizon=int(cfg.policy.obs_horizon), render=False)
-        try:
+    # one env for every pass: evaluate reseeds each episode, so the passes differ only in the noise
+    env = make_env(task, num_envs=args.num_envs, obs_horizon=int(cfg.policy.obs_horizon), render=False)
+    try:
+        for noise_seed in noise_seeds:
             result = evaluate(actor, env, episodes=args.episodes, seed=args.seed, noise_seed=noise_seed)
-        finally:
-            env.close()
-        rate, ci = result["success_once"], result["ci95"]["success_once"]
-        rows.append({"noise_seed": noise_seed, "success_once": rate, "ci95": ci})
-        print(f"noise seed {noise_seed}: success_once {result['success_once']:.2f}")
+            rate, ci = result["success_once"], result["ci95"]["success_once"]
+            rows.append({"noise_seed": noise_seed, "success_once": rate, "ci95": ci})
+            print(f"noise seed {noise_seed}: success_once {rate:.2f}")
+    finally:
+        env.close()
     rates = [r["success_once"] for r in rows]
     spread = mean_and_spread(rates)
     mean = spread["mean"]
