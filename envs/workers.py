@@ -1,5 +1,5 @@
 """Worker processes for simulators: the ``if __name__ == "__main__":`` guard they need, checked
-before any worker starts.
+before any worker starts, and the stop signals they leave to the main process.
 
 A worker started by forkserver or spawn re-imports the main script (as ``__mp_main__``). Code at
 the script's top level that makes worker envs then runs again inside each worker, which fails while
@@ -12,12 +12,29 @@ guard. Hand-written: neither multiprocessing, gymnasium nor TorchRL checks this 
 from __future__ import annotations
 
 import ast
+import functools
+import multiprocessing
+import signal
 import sys
+from collections.abc import Callable
 from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
 
-__all__ = ["MainGuardError", "check_main_guard", "explain_worker_start_failure"]
+__all__ = [
+    "WORKER_IGNORED_SIGNALS",
+    "MainGuardError",
+    "check_main_guard",
+    "explain_worker_start_failure",
+    "ignore_stop_signals",
+    "leave_stop_signals_to_parent",
+    "restore_stop_signals",
+    "signal_safe_factory",
+    "simulator_forkserver",
+]
+
+#: what a simulator worker ignores: the run's stop signals (SIGTERM, SIGUSR1) and Ctrl-C's SIGINT
+WORKER_IGNORED_SIGNALS = (signal.SIGTERM, signal.SIGUSR1, signal.SIGINT)
 
 _GUARD_HINT = (
     'put the code that makes the env under `if __name__ == "__main__":` (worker processes re-import '
@@ -115,3 +132,50 @@ def explain_worker_start_failure(what: str):
             f"{what}: a worker process exited while starting ({type(err).__name__}: {err}); its own "
             f"traceback is printed above. If it ran the script that made it again, {_GUARD_HINT}"
         ) from err
+
+
+def ignore_stop_signals() -> None:
+    """Ignore :data:`WORKER_IGNORED_SIGNALS` in this process (and the processes it forks)."""
+    for sig in WORKER_IGNORED_SIGNALS:
+        signal.signal(sig, signal.SIG_IGN)
+
+
+def restore_stop_signals() -> None:
+    """Undo :func:`ignore_stop_signals` (what a forkserver's children inherit): for pool workers, whose
+    main process does not supervise them, so that a group's signal ends them with it."""
+    for sig in WORKER_IGNORED_SIGNALS:
+        signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
+
+
+def leave_stop_signals_to_parent() -> None:
+    """In a simulator's worker process, :func:`ignore_stop_signals`; in the main process, nothing.
+
+    ``timeout``, SLURM, ``docker stop`` and Ctrl-C signal the whole process group. A worker (or the
+    forkserver that forked it: multiprocessing then reports its live workers as exited with code
+    255) killed by that signal leaves the main process mid-step, and its checkpoint-and-stop fails on
+    a dead worker (measured: a run stopped in validation crashed without its checkpoint; one stopped
+    while collecting saved it, then exited with a traceback from closing its workers). Ignoring them
+    here lets the main process checkpoint and close its workers itself; a worker whose main process
+    is killed outright still exits when its pipe closes. Call it first thing in a worker's env
+    factory; forkservers import :mod:`l1flow_rl.envs.forkserver_signals` for the same.
+    """
+    if multiprocessing.parent_process() is not None:
+        ignore_stop_signals()
+
+
+def _make_signal_safe(make: Callable, *args, **kwargs):
+    leave_stop_signals_to_parent()
+    return make(*args, **kwargs)
+
+
+def signal_safe_factory(make: Callable) -> Callable:
+    """``make`` (a worker's env factory) preceded by :func:`leave_stop_signals_to_parent`; picklable
+    whenever ``make`` is, for spawned and forkserver workers."""
+    return functools.partial(_make_signal_safe, make)
+
+
+def simulator_forkserver(preload: list[str]) -> str:
+    """The ``"forkserver"`` start method, its server importing ``preload`` once (each worker then
+    forks with the simulator already imported) after :mod:`l1flow_rl.envs.forkserver_signals`."""
+    multiprocessing.set_forkserver_preload(["l1flow_rl.envs.forkserver_signals", *preload])
+    return "forkserver"

@@ -1,5 +1,6 @@
 """Scripts that make CPU worker envs without the ``if __name__ == "__main__":`` guard are told so,
-instead of getting a ConnectionResetError from a worker that died while starting."""
+instead of getting a ConnectionResetError from a worker that died while starting; a SIGTERM to the
+whole process group leaves the workers to the main process."""
 
 from __future__ import annotations
 
@@ -107,3 +108,69 @@ def test_a_broken_pipe_while_starting_names_the_guard():
         raise EOFError
     with pytest.raises(ValueError, match="unrelated"), explain_worker_start_failure("making envs"):
         raise ValueError("unrelated")
+
+
+STOPPABLE = """\
+import signal
+import sys
+
+from torchrl.envs.utils import step_mdp
+
+from l1flow_rl.envs import make_env
+
+stop = []
+
+
+def main():
+    env = make_env({task!r}, num_envs=2, max_episode_steps=1000, **{kwargs!r})
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))  # as the run harness: finish the step
+    td = env.reset()
+    print("ready", flush=True)
+    while not stop:
+        td = step_mdp(env.rand_step(td))
+    env.rand_step(td)  # the workers still answer after the signal
+    env.close()
+    print("closed cleanly", flush=True)
+
+
+if __name__ == "__main__":
+    main()
+"""
+
+
+@pytest.mark.parametrize(
+    "task, kwargs",
+    [
+        pytest.param("robosuite_lift", {"render": False}, marks=pytest.mark.robosuite, id="robosuite"),
+        pytest.param("maniskill_pushcube", {}, marks=pytest.mark.maniskill, id="maniskill"),
+    ],
+)
+def test_a_process_group_sigterm_leaves_the_workers_to_the_main_process(tmp_path, task, kwargs):
+    # timeout, SLURM and docker stop signal the whole group: the workers and their forkserver must
+    # outlive it, so that the main process can checkpoint and close them itself
+    pytest.importorskip({"robosuite": "robosuite", "maniskill": "mani_skill"}[task.split("_")[0]])
+    import signal
+    import time
+
+    script = tmp_path / "stoppable.py"
+    script.write_text(STOPPABLE.format(task=task, kwargs=kwargs))
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, str(script)],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,  # its own process group, as a job's
+    )
+    try:
+        assert proc.stdout.readline().strip() == "ready", proc.stderr.read()[-3000:]
+        time.sleep(1.0)  # mid-rollout
+        os.killpg(proc.pid, signal.SIGTERM)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, err[-3000:]
+    assert "closed cleanly" in out and "Traceback" not in err, err[-3000:]

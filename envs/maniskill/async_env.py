@@ -12,7 +12,6 @@ shared memory for ~0.4 ms.
 from __future__ import annotations
 
 import functools
-import multiprocessing
 import os
 from collections.abc import Callable
 from typing import Any, ClassVar
@@ -21,7 +20,12 @@ import numpy as np
 import torch
 from l1flow_rl.envs.maniskill.base import ManiSkillEnvBase
 from l1flow_rl.envs.maniskill.env import INSTALL_HINT, ManiSkillEnv
-from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
+from l1flow_rl.envs.workers import (
+    check_main_guard,
+    explain_worker_start_failure,
+    leave_stop_signals_to_parent,
+    simulator_forkserver,
+)
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
@@ -49,8 +53,7 @@ def use_forkserver() -> str:
     """The start method for simulator workers: forked from a clean server that has the simulator
     imported (a spawned worker re-imports everything, ~10 s each here; a plain fork of a process
     with ManiSkill in it hung). Scripts that make workers need the ``__main__`` guard."""
-    multiprocessing.set_forkserver_preload(_WORKER_PRELOAD)
-    return "forkserver"
+    return simulator_forkserver(_WORKER_PRELOAD)
 
 
 class _WorkerGymEnv(gym.Env):
@@ -117,6 +120,7 @@ class _WorkerFactory:
 
     def __call__(self) -> _WorkerGymEnv:
         if os.getpid() != self.parent_pid:
+            leave_stop_signals_to_parent()
             torch.set_num_threads(1)
         return _WorkerGymEnv(self.make_env())
 

@@ -14,7 +14,7 @@ import torch
 from l1flow_rl.envs.pusht.env import PushTEnv
 from l1flow_rl.envs.pusht.protocol import PROTOCOL as PROTOCOL  # registers eval.protocol=diffusion_policy
 from l1flow_rl.envs.registry import SimulatorSpec, register_simulator
-from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
+from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure, signal_safe_factory
 from tensordict.utils import NestedKey
 from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
 
@@ -85,7 +85,9 @@ def make_pusht_env(
         what = f"PushT with num_envs={num_envs} in worker processes ({task.name!r})"
         check_main_guard(what)  # spawned workers re-import the main script
         with explain_worker_start_failure(what):
-            env = ParallelEnv(num_envs, make, mp_start_method=mp_start_method, device=device)
+            env = ParallelEnv(
+                num_envs, signal_safe_factory(make), mp_start_method=mp_start_method, device=device
+            )
     return env
 
 

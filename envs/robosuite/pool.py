@@ -10,6 +10,7 @@ import os
 from collections.abc import Callable
 
 from l1flow_rl.envs.robosuite.sim import choose_gl
+from l1flow_rl.envs.workers import restore_stop_signals, simulator_forkserver
 
 __all__ = ["InProcessExecutor", "forkserver", "worker_pool"]
 
@@ -20,8 +21,7 @@ _WORKER_PRELOAD = ["torch", "torchrl.envs", "robosuite", "l1flow_rl.envs.robosui
 def forkserver() -> str:
     """The start method of robosuite's worker processes: a forkserver with robosuite preloaded."""
     os.environ.setdefault("MUJOCO_GL", choose_gl())  # the server reads it when it imports robosuite
-    multiprocessing.set_forkserver_preload(_WORKER_PRELOAD)
-    return "forkserver"
+    return simulator_forkserver(_WORKER_PRELOAD)
 
 
 class InProcessExecutor(cf.Executor):
@@ -44,4 +44,11 @@ def worker_pool(workers: int, initializer: Callable[..., None], initargs: tuple 
         initializer(*initargs)
         return InProcessExecutor()
     ctx = multiprocessing.get_context(forkserver())
-    return cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=initializer, initargs=initargs)
+    return cf.ProcessPoolExecutor(
+        workers, mp_context=ctx, initializer=_pool_worker, initargs=(initializer, *initargs)
+    )
+
+
+def _pool_worker(initializer: Callable[..., None], *initargs) -> None:
+    restore_stop_signals()  # the forkserver ignores them; the demos' main process does not handle them
+    initializer(*initargs)
