@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import ast
 import os
+import signal
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 from l1flow_rl.envs.workers import _guarded, explain_worker_start_failure
@@ -149,9 +151,6 @@ def test_a_process_group_sigterm_leaves_the_workers_to_the_main_process(tmp_path
     # timeout, SLURM and docker stop signal the whole group: the workers and their forkserver must
     # outlive it, so that the main process can checkpoint and close them itself
     pytest.importorskip({"robosuite": "robosuite", "maniskill": "mani_skill"}[task.split("_")[0]])
-    import signal
-    import time
-
     script = tmp_path / "stoppable.py"
     script.write_text(STOPPABLE.format(task=task, kwargs=kwargs))
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
