@@ -27,7 +27,6 @@ __all__ = [
     "check_main_guard",
     "explain_worker_start_failure",
     "ignore_stop_signals",
-    "leave_stop_signals_to_parent",
     "restore_stop_signals",
     "signal_safe_factory",
     "simulator_forkserver",
@@ -147,35 +146,31 @@ def restore_stop_signals() -> None:
         signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
 
 
-def leave_stop_signals_to_parent() -> None:
-    """In a simulator's worker process, :func:`ignore_stop_signals`; in the main process, nothing.
+def _make_signal_safe(make: Callable, *args, **kwargs):
+    ignore_stop_signals()
+    return make(*args, **kwargs)
+
+
+def signal_safe_factory(make: Callable) -> Callable:
+    """``make`` (a worker's env factory) run after :func:`ignore_stop_signals`, for workers that do
+    not come from :func:`simulator_forkserver` (whose children inherit it); picklable whenever
+    ``make`` is.
 
     ``timeout``, SLURM, ``docker stop`` and Ctrl-C signal the whole process group. A worker (or the
     forkserver that forked it: multiprocessing then reports its live workers as exited with code
     255) killed by that signal leaves the main process mid-step, and its checkpoint-and-stop fails on
     a dead worker (measured: a run stopped in validation crashed without its checkpoint; one stopped
     while collecting saved it, then exited with a traceback from closing its workers). Ignoring them
-    here lets the main process checkpoint and close its workers itself; a worker whose main process
-    is killed outright still exits when its pipe closes. Call it first thing in a worker's env
-    factory; forkservers import :mod:`l1flow_rl.envs.forkserver_signals` for the same.
+    in the workers lets the main process checkpoint and close them itself; a worker whose main
+    process is killed outright still exits when its pipe closes.
     """
-    if multiprocessing.parent_process() is not None:
-        ignore_stop_signals()
-
-
-def _make_signal_safe(make: Callable, *args, **kwargs):
-    leave_stop_signals_to_parent()
-    return make(*args, **kwargs)
-
-
-def signal_safe_factory(make: Callable) -> Callable:
-    """``make`` (a worker's env factory) preceded by :func:`leave_stop_signals_to_parent`; picklable
-    whenever ``make`` is, for spawned and forkserver workers."""
     return functools.partial(_make_signal_safe, make)
 
 
 def simulator_forkserver(preload: list[str]) -> str:
     """The ``"forkserver"`` start method, its server importing ``preload`` once (each worker then
-    forks with the simulator already imported) after :mod:`l1flow_rl.envs.forkserver_signals`."""
+    forks with the simulator already imported) after :mod:`l1flow_rl.envs.forkserver_signals`, so
+    that the server and every worker it forks leave the stop signals to the main process (why:
+    :func:`signal_safe_factory`)."""
     multiprocessing.set_forkserver_preload(["l1flow_rl.envs.forkserver_signals", *preload])
     return "forkserver"

@@ -11,7 +11,7 @@ import torch
 from l1flow_rl.envs.maniskill.env import INSTALL_HINT, ManiSkillEnv
 from l1flow_rl.envs.maniskill.protocol import PROTOCOL as PROTOCOL  # registers eval.protocol=maniskill
 from l1flow_rl.envs.registry import SimulatorSpec, register_simulator
-from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure, signal_safe_factory
+from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
 from tensordict.utils import NestedKey
 from torchrl.envs import EnvBase, ParallelEnv
 
@@ -74,7 +74,7 @@ def make_maniskill_env(
     with explain_worker_start_failure(what):
         return ParallelEnv(
             num_envs,
-            signal_safe_factory(functools.partial(ManiSkillEnv, task, num_envs=None, **env_kwargs)),
+            functools.partial(ManiSkillEnv, task, num_envs=None, **env_kwargs),
             mp_start_method=use_forkserver(),
             metadata_from_workers=True,
             use_buffers=False,

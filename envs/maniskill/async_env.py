@@ -23,7 +23,6 @@ from l1flow_rl.envs.maniskill.env import INSTALL_HINT, ManiSkillEnv
 from l1flow_rl.envs.workers import (
     check_main_guard,
     explain_worker_start_failure,
-    leave_stop_signals_to_parent,
     simulator_forkserver,
 )
 from tensordict import TensorDict, TensorDictBase
@@ -120,7 +119,6 @@ class _WorkerFactory:
 
     def __call__(self) -> _WorkerGymEnv:
         if os.getpid() != self.parent_pid:
-            leave_stop_signals_to_parent()
             torch.set_num_threads(1)
         return _WorkerGymEnv(self.make_env())
 

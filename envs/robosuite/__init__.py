@@ -18,7 +18,6 @@ from l1flow_rl.envs.robosuite.dataset import prepare_robomimic_dataset, robosuit
 from l1flow_rl.envs.robosuite.env import RobosuiteEnv
 from l1flow_rl.envs.robosuite.pool import forkserver
 from l1flow_rl.envs.robosuite.sim import INSTALL_HINT, image_key
-from l1flow_rl.envs.workers import leave_stop_signals_to_parent
 from tensordict.utils import NestedKey
 from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
 
@@ -34,7 +33,6 @@ def robosuite_observation_entries(task: TaskConfig) -> Mapping[NestedKey, int]:
 
 
 def _worker_env(task: TaskConfig, **kwargs) -> EnvBase:
-    leave_stop_signals_to_parent()
     if multiprocessing.parent_process() is not None:
         torch.set_num_threads(1)  # the workers already use every core
     return RobosuiteEnv(task, **kwargs)
