@@ -12,7 +12,9 @@ sizes, the parts of one update are timed in alternation (``benchmarks.common.int
 * ``bc_fwd_bwd``: the flow's L1 Flow loss (QC, FQL);
 * ``update``: the whole update as the loop runs it (losses, backward, Adam, SoftUpdate).
 
-Variants that bear on design choices: QC with N = 8, QC with the flow frozen, critics of 2 x 256.
+Variants that bear on design choices: QC with N = 8, QC with the flow frozen (its proposals cached per
+next observation: timed warm, as in a run where each stored state's proposals were drawn once, with
+``proposals_2nfe`` the one-time cost of 256 observations' draws), critics of 2 x 256.
 Then env steps/s of one physx_cpu env stepping random actions (raw) against the env driven by each
 algorithm's acting module (one chunk per 8 steps). Ratios are against baselines of the same run.
 
@@ -45,8 +47,9 @@ DESIGN = {
         "online runs here use N=8 and 1 update per 20 env steps (bench_finetune_online.CPU_BUDGET)"
     ),
     "qc_frozen_flow_over_qc_update": (
-        "freezing the flow saves only its BC term; the proposals stay, so caching them per stored window "
-        "while the flow is frozen is the next saving (not built)"
+        "with the flow frozen, each observation's N proposals are drawn once (ProposalCache): a warm "
+        "update costs the critics' pick over 256 x N cached chunks, not the flow; before the cache, "
+        "freezing saved only the BC term (0.43x)"
     ),
     "qc_critic_2x256_over_qc_update": "smaller critics do not change QC's cost (the proposals dominate)",
     "fql_over_qc_update": (

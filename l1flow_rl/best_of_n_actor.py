@@ -72,15 +72,23 @@ class BestOfNActor(ExecutesChunks, TensorDictModuleBase):
     def policy(self) -> ChunkPolicy:
         return self.actor.policy
 
-    def propose(self, obs: TensorDictBase, num_samples: int | None = None) -> Tensor:
+    def propose(
+        self, obs: TensorDictBase, num_samples: int | None = None, noise: Tensor | None = None
+    ) -> Tensor:
         """N full chunks per read observation [B, To]: [B, N, H, A] in environment units (the
-        encoder runs once per observation, the network twice per chunk)."""
+        encoder runs once per observation, the network twice per chunk). ``noise`` [B, N, H, A]:
+        the sampler's starting noise (default: fresh standard-normal draws)."""
         policy, n = self.policy, int(num_samples or self.num_samples)
         cond = policy.encode(obs).repeat_interleave(n, 0)
-        noise = torch.randn(
-            cond.shape[0], policy.pred_horizon, policy.action_dim, dtype=cond.dtype, device=cond.device
-        )
-        x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), noise)
+        shape = (cond.shape[0], policy.pred_horizon, policy.action_dim)
+        if noise is None:
+            noise = torch.randn(shape, dtype=cond.dtype, device=cond.device)
+        elif noise.shape != (obs.shape[0], n, *shape[1:]):
+            raise ValueError(
+                f"noise must have shape {[obs.shape[0], n, *shape[1:]]} (observations, proposals, "
+                f"pred_horizon, action_dim), got {list(noise.shape)}"
+            )
+        x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), noise.reshape(shape).to(cond))
         return policy.action_normalizer.unnormalize(x1).reshape(obs.shape[0], n, *x1.shape[1:])
 
     def executed(self, chunks: Tensor) -> Tensor:
@@ -90,9 +98,12 @@ class BestOfNActor(ExecutesChunks, TensorDictModuleBase):
 
     def pick(self, obs: TensorDictBase, chunks: Tensor) -> Tensor:
         """Index [B] of the proposal [B, N, H, A] with the highest mean value under ``self.critic``."""
-        b, n = chunks.shape[:2]
-        executed = self.executed(chunks).reshape(b * n, self.rl_horizon, -1)
-        q = self.critic(obs.repeat_interleave(n, 0), executed).mean(-1)
+        return self.pick_executed(obs, self.executed(chunks))
+
+    def pick_executed(self, obs: TensorDictBase, executed: Tensor) -> Tensor:
+        """Index [B] of the proposal's executed steps [B, N, h, A] that ``self.critic`` values most."""
+        b, n = executed.shape[:2]
+        q = self.critic(obs.repeat_interleave(n, 0), executed.reshape(b * n, self.rl_horizon, -1)).mean(-1)
         return q.reshape(b, n).argmax(1)
 
     @torch.no_grad()

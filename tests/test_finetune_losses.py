@@ -226,3 +226,45 @@ def test_steering_under_the_multi_step_wrapper_gives_each_step_its_chunk_noise_a
         [3],
     )
     assert loss.valid(batch, 3).tolist() == [True, False, False]
+
+
+def test_frozen_qc_draws_each_observations_proposals_once_and_reproducibly():
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    critic = linear_critic(flow, (H_EXEC, 3), [0.0, 0.0], action_weight=1.0)
+    loss = QCLoss(flow, critic, num_samples=5, freeze_flow=True, cache_seed=3)
+    calls = []
+    real_propose = loss.actor.propose
+
+    def counting_propose(obs, num_samples=None, noise=None):
+        calls.append(obs.shape[0])
+        return real_propose(obs, num_samples, noise=noise)
+
+    loss.actor.propose = counting_propose
+    obs = flow.policy.as_obs_dict(torch.randn(6, 2, 2))
+    repeated = obs[[0, 1, 2, 3, 4, 5, 0, 0]]  # a batch may hold one observation twice
+    first = loss.next_value(None, repeated)
+    assert calls == [6] and len(loss.proposal_cache) == 6
+    assert loss.next_value(None, obs[[5, 0]]).tolist() == first[[5, 0]].tolist()
+    assert calls == [6]  # served from the cache: no flow call
+    cache = loss.proposal_cache
+    assert (cache.hits, cache.misses) == (4, 6)
+    out = loss(window_batch()[:16])
+    assert 0.0 < out["proposal_cache_hit_rate"].item() < 1.0 and "loss_bc" not in out
+    # the backup is the best cached proposal under the online critics (Q = sum of the chunk)
+    executed = cache(obs)
+    best = executed.sum((-1, -2)).max(1).values
+    assert torch.allclose(loss.next_value(None, obs), best)
+    # a fresh cache (a resumed run) draws the same proposals; another seed draws others
+    again = QCLoss(flow, critic, num_samples=5, freeze_flow=True, cache_seed=3).proposal_cache
+    assert torch.equal(again(obs), executed)
+    other = QCLoss(flow, critic, num_samples=5, freeze_flow=True, cache_seed=4).proposal_cache
+    assert not torch.equal(other(obs), executed)
+    with pytest.raises(ValueError, match=r"noise must have shape \[6, 5, 8, 3\]"):
+        real_propose(obs, noise=torch.zeros(6, 4, 8, 3))
+
+
+def test_unfrozen_qc_keeps_no_cache():
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    critic = ChunkCritic.from_policy(flow, input_shape=(H_EXEC, 3), hidden_dims=(16,))
+    loss = QCLoss(flow, critic, num_samples=4)
+    assert loss.proposal_cache is None and "proposal_cache_hit_rate" not in loss(window_batch()[:8])

@@ -27,6 +27,7 @@ MODULES = [
     "l1flow_rl.objectives.qc",
     "l1flow_rl.objectives.regression",
     "l1flow_rl.pretrained",
+    "l1flow_rl.proposal_cache",
 ]
 
 

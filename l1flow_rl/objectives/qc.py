@@ -3,7 +3,9 @@
 The next chunk a' of the TD target is the best of N proposals of the flow's 2-NFE sampler at
 s_{t+h}, picked by the ONLINE critics (their mean) and valued by the TARGET critics (``q_agg``): QC's
 expected-max backup. The flow keeps its L1 Flow BC loss on the replay batches (QC's only way to
-move the proposals), unless ``freeze_flow``.
+move the proposals), unless ``freeze_flow``: a frozen flow's proposals at a stored state are then
+drawn once and reused (:class:`~l1flow_rl.proposal_cache.ProposalCache`), so an update costs the
+critics alone instead of 256 x N flow samples.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from l1flow_rl.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_ex
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.objectives.l1flow import L1FlowLoss
+from l1flow_rl.proposal_cache import ProposalCache
 
 __all__ = ["QCLoss"]
 
@@ -47,7 +50,9 @@ class QCLoss(ChunkCriticLoss):
 
     Keyword Args:
         num_samples: N proposals per next state (QC: 32).
-        freeze_flow: keep the flow's weights as they are (no BC term, no flow parameters trained).
+        freeze_flow: keep the flow's weights as they are (no BC term, no flow parameters trained);
+            the backup's proposals are then drawn once per distinct next observation and cached.
+        cache_seed: mixed into the cached proposals' noise seeds (the run's seed).
         td_options: ``gamma``, ``q_agg`` and ``rl_horizon`` of :class:`~l1flow_rl.ChunkCriticLoss`.
 
     :attr:`actor` is the acting :class:`~l1flow_rl.BestOfNActor`: it shares the flow and the online
@@ -63,6 +68,7 @@ class QCLoss(ChunkCriticLoss):
         *,
         num_samples: int = 32,
         freeze_flow: bool = False,
+        cache_seed: int = 0,
         **td_options: Any,
     ) -> None:
         super().__init__(critic, actor_network, **td_options)
@@ -78,16 +84,31 @@ class QCLoss(ChunkCriticLoss):
         self.__dict__["actor"] = BestOfNActor(
             actor_network, self.critic, num_samples=num_samples, rl_horizon=self.rl_horizon
         )
+        self.proposal_cache = None
+        if self.freeze_flow:
+            policy = actor_network.policy
+            self.proposal_cache = ProposalCache(
+                lambda obs, noise: self.actor.executed(self.actor.propose(obs, noise=noise)),
+                noise_shape=(int(num_samples), policy.pred_horizon, policy.action_dim),
+                seed=cache_seed,
+            )
 
     def next_value(self, td: TensorDictBase, next_obs: TensorDictBase) -> Tensor:
-        chunks = self.actor.propose(next_obs)  # [N, n, H, A]
-        picked = self.actor.pick(next_obs, chunks)  # online critics
-        chosen = self.actor.executed(chunks[torch.arange(chunks.shape[0]), picked])
+        if self.proposal_cache is not None:
+            executed = self.proposal_cache(next_obs)  # [n, N, h, A], drawn once per observation
+        else:
+            executed = self.actor.executed(self.actor.propose(next_obs))
+        picked = self.actor.pick_executed(next_obs, executed)  # online critics
+        chosen = executed[torch.arange(executed.shape[0]), picked]
         return self.aggregate_target(self.q(next_obs, chosen, target=True))  # target critics
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         loss_q, out = self.qvalue_loss(tensordict)
         out = {"loss_qvalue": loss_q, **out}
+        if self.proposal_cache is not None:  # how much of the backup the cache served (detached)
+            cache = self.proposal_cache
+            out["proposal_cache_size"] = torch.tensor(float(len(cache)))
+            out["proposal_cache_hit_rate"] = torch.tensor(cache.hits / max(cache.hits + cache.misses, 1))
         if self.bc_loss is not None:
             bc = self.bc_loss(tensordict)
             out["loss_bc"] = bc[self.bc_loss.loss_name]

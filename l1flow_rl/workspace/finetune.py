@@ -142,6 +142,8 @@ def run_finetune(cfg: DictConfig) -> int:
         dataset = _dataset(cfg, bc_state)
         episodes = load_task_episodes(cfg, dataset)
         loss = algorithm.build(copy.deepcopy(bc_actor), fcfg).to(device)
+        if getattr(loss, "proposal_cache", None) is not None:  # each seed draws its own cached proposals
+            loss.proposal_cache.seed = int(cfg.seed)
         start = algorithm.start_actor(loss)
         acting = ActingSwitch(start, loss.actor)
         optimizer = torch.optim.Adam([p for p in loss.parameters() if p.requires_grad], lr=float(fcfg.lr))
