@@ -14,6 +14,7 @@ pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-r
 
 from l1flow_rl import BestOfNActor, NoiseActor
 from l1flow_rl.cli import main
+from l1flow_rl.proposal_cache import ProposalCache
 from l1flow_rl.workspace import finetune as finetune_job
 from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_actor, load_checkpoint
 
@@ -120,14 +121,9 @@ def test_the_checkpoint_rebuilds_the_best_of_n_actor_for_eval(tmp_path, finetune
     assert main([*args, f"run_dir={out}"]) == 0
 
 
-def test_resume_of_an_online_run_killed_mid_way_matches_an_uninterrupted_run(
-    tmp_path, data_dir, bc_checkpoint, finetuned, monkeypatch
-):
-    """Killed during the second round's updates, resumed from the checkpoint after the first round:
-    the same weights, critics, optimiser, buffers, logged rounds as the uninterrupted run (evaluation
-    off here, which also shows that evaluating leaves training untouched)."""
-    run_dir = tmp_path / "run"
-    args = _args(run_dir, data_dir, bc_checkpoint, "finetune=qc", "eval.episodes=0")
+def _killed_and_resumed(run_dir, args, monkeypatch) -> dict:
+    """``args`` killed during the second round's updates, then resumed from the checkpoint after the
+    first round: the resumed run's last checkpoint."""
     real_update, calls = finetune_job.update, {"n": 0}
 
     def crashing_update(*a, **k):
@@ -142,8 +138,10 @@ def test_resume_of_an_online_run_killed_mid_way_matches_an_uninterrupted_run(
     assert load_checkpoint(run_dir / "checkpoints" / "latest.pt")["progress"]["env_steps"] == 40
     monkeypatch.setattr(finetune_job, "update", real_update)
     assert main([*args, "resume=true"]) == 0
-    resumed = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
-    straight = load_checkpoint(finetuned / "checkpoints" / "latest.pt")
+    return load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+
+
+def _assert_same_run(resumed: dict, straight: dict) -> None:
     assert resumed["progress"] == straight["progress"]
     assert _differing(resumed["model"], straight["model"]) == []
     assert _differing(resumed["loss"], straight["loss"]) == []
@@ -152,6 +150,38 @@ def test_resume_of_an_online_run_killed_mid_way_matches_an_uninterrupted_run(
     np.testing.assert_array_equal(resumed["history"]["loss_qvalue"], straight["history"]["loss_qvalue"])
     strip = lambda rows: [{k: v for k, v in r.items() if not k.endswith("_per_s")} for r in rows]  # noqa: E731
     assert strip(resumed["records"]["rounds"]) == strip(straight["records"]["rounds"])
+
+
+def test_resume_of_an_online_run_killed_mid_way_matches_an_uninterrupted_run(
+    tmp_path, data_dir, bc_checkpoint, finetuned, monkeypatch
+):
+    """The same weights, critics, optimiser, buffers, logged rounds as the uninterrupted run (evaluation
+    off here, which also shows that evaluating leaves training untouched)."""
+    run_dir = tmp_path / "run"
+    args = _args(run_dir, data_dir, bc_checkpoint, "finetune=qc", "eval.episodes=0")
+    resumed = _killed_and_resumed(run_dir, args, monkeypatch)
+    _assert_same_run(resumed, load_checkpoint(finetuned / "checkpoints" / "latest.pt"))
+
+
+def test_frozen_qc_resumes_exactly_with_its_proposal_cache_redrawn(
+    tmp_path, data_dir, bc_checkpoint, monkeypatch
+):
+    """The cache is not checkpointed: a resumed run redraws each observation's proposals from the same
+    per-observation noise, so its critics match the uninterrupted run's bit for bit."""
+    frozen = ("finetune=qc", "finetune.qc.freeze_flow=true", "eval.episodes=0")
+    straight_dir = tmp_path / "straight"
+    served, real_call = [], ProposalCache.__call__
+    monkeypatch.setattr(ProposalCache, "__call__", lambda self, obs: served.append(1) or real_call(self, obs))
+    assert main(_args(straight_dir, data_dir, bc_checkpoint, *frozen)) == 0
+    assert len(served) == 4 + 4  # every offline and online update's backup went through the cache
+    monkeypatch.setattr(ProposalCache, "__call__", real_call)
+    straight = load_checkpoint(straight_dir / "checkpoints" / "latest.pt")
+    run_dir = tmp_path / "run"
+    resumed = _killed_and_resumed(run_dir, _args(run_dir, data_dir, bc_checkpoint, *frozen), monkeypatch)
+    _assert_same_run(resumed, straight)
+    flow = load_actor(bc_checkpoint)[0].state_dict()
+    tuned = {k.removeprefix("actor."): v for k, v in resumed["model"].items() if k.startswith("actor.")}
+    assert tuned.keys() == flow.keys() and _differing(tuned, flow) == []  # the flow stayed as it was
 
 
 def test_a_checkpoint_of_another_task_is_refused(tmp_path, data_dir, bc_checkpoint):
