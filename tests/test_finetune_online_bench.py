@@ -3,11 +3,12 @@ RESULTS.md table drawn from them (synthetic runs with numbers chosen by hand).""
 
 from __future__ import annotations
 
+import argparse
 import json
 
 import pytest
 
-from benchmarks.bench_finetune_online import aggregate, read_control, seeded_control
+from benchmarks.bench_finetune_online import aggregate, last_weights_eval_cmd, read_control, seeded_control
 from benchmarks.finetune_report import render_finetune_online
 
 
@@ -92,3 +93,20 @@ def test_a_finished_run_reads_its_closing_validation_at_its_last_env_step(tmp_pa
         (40_000, 0.16),
     ]
     assert aggregate({0: run})["curve"][0] == {"env_steps": 0, "mean": 0.18, "min": 0.18, "max": 0.18}
+
+
+def test_the_continued_bc_last_weights_control_is_an_eval_of_latest_on_the_test_seeds(tmp_path):
+    args = argparse.Namespace(task="robosuite_can", test_episodes=100)
+    control_dir = tmp_path / "robosuite_can_continued_bc_seed0"
+    cmd = last_weights_eval_cmd(args, control_dir, tmp_path / "out")
+    assert cmd[3:] == [
+        "eval",
+        f"checkpoint={control_dir / 'checkpoints' / 'latest.pt'}",
+        "task=robosuite_can",
+        f"run_dir={tmp_path / 'out'}",
+        "eval.episodes=100",
+    ]
+    # an ``l1flow-rl eval`` run has eval.json and no summary.json: read with no step or CPU count
+    (tmp_path / "eval.json").write_text(json.dumps({"success_once": 0.16, "episodes": 100}))
+    control = read_control(tmp_path)
+    assert control["test"]["success_once"] == 0.16 and control["steps"] is None
