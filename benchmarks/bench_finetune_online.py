@@ -8,7 +8,8 @@ cost figures of every run in one JSON and one figure per task.
 
 The runs are ``l1flow-rl finetune finetune=<algorithm> ...`` with the preset's defaults, except the
 per-algorithm budget overrides in :data:`CPU_BUDGET` (each says why: what the 2-core cost figures of
-``bench_finetune_cost.py`` allow); ``--override`` adds more to every run. Finished runs (their
+``bench_finetune_cost.py`` allow); ``--override`` adds more to every run, or replaces a budget
+override of the same key. Finished runs (their
 ``eval.json``) are read back, interrupted ones resume from their last checkpoint; ``--collect-only``
 only reads.
 
@@ -45,6 +46,13 @@ CPU_BUDGET: dict[str, list[str]] = {
 }
 
 
+def budget(algorithm: str, override: list[str]) -> list[str]:
+    """The algorithm's CPU budget overrides, then ``--override``; an ``--override`` of a key the budget
+    sets replaces it (hydra refuses a key given twice)."""
+    keys = {item.partition("=")[0] for item in override}
+    return [o for o in CPU_BUDGET[algorithm] if o.partition("=")[0] not in keys] + list(override)
+
+
 def run_one(algorithm: str, seed: int, args, run_dir: Path) -> list[str]:
     return [
         sys.executable,
@@ -60,8 +68,7 @@ def run_one(algorithm: str, seed: int, args, run_dir: Path) -> list[str]:
         f"eval.episodes={args.test_episodes}",
         f"eval.val_episodes={args.val_episodes}",
         f"seed={seed}",
-        *CPU_BUDGET[algorithm],
-        *args.override,
+        *budget(algorithm, args.override),
     ]
 
 
@@ -321,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
         runs = {s: read_run(dirs[(a, s)]) for s in args.seeds if readable(dirs[(a, s)])}
         if runs:
             algorithms[a] = {
-                "budget_overrides": CPU_BUDGET[a] + args.override,
+                "budget_overrides": budget(a, args.override),
                 "runs": {str(s): r for s, r in runs.items()},
                 "aggregate": aggregate(runs),
             }

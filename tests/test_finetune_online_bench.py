@@ -110,3 +110,13 @@ def test_the_continued_bc_last_weights_control_is_an_eval_of_latest_on_the_test_
     (tmp_path / "eval.json").write_text(json.dumps({"success_once": 0.16, "episodes": 100}))
     control = read_control(tmp_path)
     assert control["test"]["success_once"] == 0.16 and control["steps"] is None
+
+
+def test_an_override_replaces_the_budgets_value_of_the_same_key():
+    from benchmarks.bench_finetune_online import CPU_BUDGET, budget
+
+    assert "online.updates_per_step=0.05" in CPU_BUDGET["qc"]
+    merged = budget("qc", ["online.updates_per_step=0.1", "finetune.qc.freeze_flow=true"])
+    expected = ["finetune.qc.num_samples=8", "online.updates_per_step=0.1", "finetune.qc.freeze_flow=true"]
+    assert merged == expected
+    assert budget("filtered_bc", []) == []
