@@ -2,7 +2,8 @@
 
 For QC, FQL and DSRL (their presets, ``configs/finetune/``) at batch 256 with the task's policy network
 (``PolicyConfig``: the ManiSkill-sized UNet, down_dims 64/128/256) on the task's observation and action
-sizes, the parts of one update are timed in alternation (``benchmarks.common.interleaved``):
+sizes, the parts of one update of every setting are timed in alternation, all settings in one loop
+(``benchmarks.common.interleaved``):
 
 * ``targets``: the TD target (QC: N proposals at s' by the 2-NFE sampler, the online critics' pick,
   the target critics' value; FQL: mu at s'; DSRL: the noise actor at s'), and within it
@@ -155,13 +156,20 @@ def main(argv: list[str] | None = None) -> int:
         "dsrl": ("dsrl", []),
         "dsrl_critic_2x256": ("dsrl", small),
     }
-    timings, rows = {}, []
+    # every setting's parts take turns in one interleaved loop, so that load drifting on the shared
+    # machine hits the settings alike and the ratios between settings stay fair
+    fns = {}
     for name, (algorithm, overrides) in settings.items():
         loss, _ = build_loss(algorithm, build_actor(policy, {"state": (obs_dim,)}, action_dim), overrides)
-        ms = interleaved(parts(loss, data), rounds=args.rounds, device=torch.device("cpu"))
-        timings[name] = {k: round(v["wall_ms"], 2) for k, v in ms.items()}
-        rows.append({"setting": name, **timings[name]})
-        print(f"{name}: {timings[name]}", flush=True)
+        fns.update({f"{name}/{part}": fn for part, fn in parts(loss, data).items()})
+    ms = interleaved(fns, rounds=args.rounds, device=torch.device("cpu"))
+    timings = {name: {} for name in settings}
+    for key, v in ms.items():
+        name, part = key.split("/")
+        timings[name][part] = round(v["wall_ms"], 2)
+    rows = [{"setting": name, **t} for name, t in timings.items()]
+    for name, t in timings.items():
+        print(f"{name}: {t}", flush=True)
     print(
         format_table(
             rows,
