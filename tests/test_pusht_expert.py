@@ -195,8 +195,15 @@ def test_ctrl_c_stops_the_demo_workers_promptly(tmp_path):
         "demos.num=50",
         f"data_dir={tmp_path}",
     ]
+    # a terminal's process starts with SIGINT at its default; a test run launched in the background
+    # (``pytest &``) would hand down an ignored SIGINT, which the command rightly keeps ignoring
     proc = subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         deadline = time.monotonic() + 120
