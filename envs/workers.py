@@ -12,6 +12,7 @@ guard. Hand-written: neither multiprocessing, gymnasium nor TorchRL checks this 
 from __future__ import annotations
 
 import ast
+import atexit
 import functools
 import multiprocessing
 import signal
@@ -146,6 +147,26 @@ def restore_stop_signals() -> None:
         signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
 
 
+@functools.cache
+def _kill_daemonic_workers_at_exit() -> None:
+    """Register (once, in the main process) the exit step that multiprocessing's own cannot do here.
+
+    At interpreter exit multiprocessing sends SIGTERM to the daemonic children still running (an env
+    never closed, or one kept alive by a reference until then), then joins them. Simulator workers
+    ignore SIGTERM (:func:`signal_safe_factory`), so that join waited forever: measured, a finished
+    ``l1flow-rl train`` on PegInsertionSide hung at exit for 30 minutes after writing eval.json.
+    atexit runs handlers last-registered first, so this one kills them before multiprocessing's runs.
+    """
+
+    def kill_daemonic_children() -> None:
+        for child in multiprocessing.active_children():
+            if child.daemon:
+                child.kill()
+                child.join(timeout=10)
+
+    atexit.register(kill_daemonic_children)
+
+
 def _make_signal_safe(make: Callable, *args, **kwargs):
     ignore_stop_signals()
     return make(*args, **kwargs)
@@ -164,6 +185,7 @@ def signal_safe_factory(make: Callable) -> Callable:
     in the workers lets the main process checkpoint and close them itself; a worker whose main
     process is killed outright still exits when its pipe closes.
     """
+    _kill_daemonic_workers_at_exit()
     return functools.partial(_make_signal_safe, make)
 
 
@@ -173,4 +195,5 @@ def simulator_forkserver(preload: list[str]) -> str:
     that the server and every worker it forks leave the stop signals to the main process (why:
     :func:`signal_safe_factory`)."""
     multiprocessing.set_forkserver_preload(["l1flow_rl.envs.forkserver_signals", *preload])
+    _kill_daemonic_workers_at_exit()
     return "forkserver"

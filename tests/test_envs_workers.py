@@ -173,3 +173,36 @@ def test_a_process_group_sigterm_leaves_the_workers_to_the_main_process(tmp_path
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 0, err[-3000:]
     assert "closed cleanly" in out and "Traceback" not in err, err[-3000:]
+
+
+LEFT_OPEN = """\
+from l1flow_rl.envs import make_env
+
+KEEP = []
+
+
+def main():
+    env = make_env("maniskill_pushcube", num_envs=2, max_episode_steps=50)
+    env.reset()
+    KEEP.append(env)  # alive when the interpreter exits, never closed
+    print("left open", flush=True)
+
+
+if __name__ == "__main__":
+    main()
+"""
+
+
+@pytest.mark.maniskill
+def test_a_process_exits_with_an_env_it_never_closed(tmp_path):
+    # multiprocessing's exit handler stops daemonic children with SIGTERM, which simulator workers
+    # ignore: without our exit step the interpreter waited on them forever
+    pytest.importorskip("mani_skill")
+    script = tmp_path / "left_open.py"
+    script.write_text(LEFT_OPEN)
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    proc = subprocess.run(
+        [sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0 and proc.stdout.strip() == "left open", proc.stderr[-3000:]
+    assert "Traceback" not in proc.stderr  # the workers are killed, not left to fail on a closed pipe
