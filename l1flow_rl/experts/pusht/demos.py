@@ -73,19 +73,20 @@ def run_episodes(
     most the number of seeds), yielding ``(seed, demo or None, error or None)`` in seed order."""
     workers = max(1, min(workers or os.cpu_count() or 1, len(seeds)))
     job = partial(_worker, images=images, image_size=image_size, max_steps=max_steps)
-    bar = None
-    if progress:
-        # optional dependency (app extra): the progress bar
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(seeds), desc=desc, unit="episode", dynamic_ncols=True)
+    bar = pool = None
     try:
         if workers == 1:
             results = map(job, seeds)
-            pool = None
         else:
             pool = _spawn_pool(workers)
             results = pool.imap(job, seeds)
+        if progress:
+            # optional dependency (app extra). Shown once the pool is up: a Ctrl-C while the pool
+            # starts (SIGINT ignored, see _spawn_pool; seconds on a loaded machine, when a fresh-clone
+            # CI run's Ctrl-C test sent it right after the bar) is lost; one after the bar stops the run
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(seeds), desc=desc, unit="episode", dynamic_ncols=True)
         for item in results:
             if bar is not None:
                 bar.update(1)
