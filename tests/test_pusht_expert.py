@@ -184,6 +184,7 @@ def test_ctrl_c_stops_the_demo_workers_promptly(tmp_path):
     import signal
     import subprocess
     import sys
+    import threading
     import time
 
     cmd = [
@@ -199,27 +200,40 @@ def test_ctrl_c_stops_the_demo_workers_promptly(tmp_path):
     # (``pytest &``) would hand down an ignored SIGINT, which the command rightly keeps ignoring
     proc = subprocess.Popen(
         cmd,
-        stdout=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,  # never read: a pipe could fill and block the command
         stderr=subprocess.PIPE,
-        text=True,
         start_new_session=True,
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
+    # stderr is drained all along (a full pipe would block the command's writes: a hang of the test's
+    # making), and shown if the command outlives the guard
+    chunks: list[str] = []
+    fd = proc.stderr.fileno()  # raw reads: the progress bar redraws with \r, not newlines
+
+    def read_all() -> None:
+        for chunk in iter(lambda: os.read(fd, 4096), b""):
+            chunks.append(chunk.decode(errors="replace"))
+
+    drain = threading.Thread(target=read_all, daemon=True)
+    drain.start()
     try:
         deadline = time.monotonic() + 120
-        seen = ""
-        while "episode" not in seen:  # the progress bar is up: the pool has started
-            assert proc.poll() is None, proc.stderr.read()
+        while not any("episode" in c for c in chunks):  # the progress bar is up: the pool has started
+            assert proc.poll() is None, "".join(chunks)
             assert time.monotonic() < deadline, "no progress bar within 120 s"
-            seen += os.read(proc.stderr.fileno(), 4096).decode(errors="replace")
+            time.sleep(0.1)
         time.sleep(3)  # workers are mid-episode
         os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
-        rc = proc.wait(timeout=90)  # a hang guard; a loaded machine took over 30 s
+        try:
+            rc = proc.wait(timeout=90)  # a hang guard; a loaded machine took over 30 s
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"still running 90 s after Ctrl-C; its stderr:\n{''.join(chunks)[-3000:]}")
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+    drain.join(timeout=10)
     assert rc == 130
-    rest = proc.stderr.read()
+    rest = "".join(chunks)
     assert "interrupted" in rest
     assert "Traceback" not in rest, f"the workers were interrupted mid-episode too:\n{rest[-2000:]}"
     assert not list((tmp_path / "pusht").glob("*.zarr")), "an interrupted run must not leave a demo store"
