@@ -81,9 +81,9 @@ def run_episodes(
             pool = _spawn_pool(workers)
             results = pool.imap(job, seeds)
         if progress:
-            # optional dependency (app extra). Shown once the pool is up: a Ctrl-C while the pool
-            # starts (SIGINT ignored, see _spawn_pool; seconds on a loaded machine, when a fresh-clone
-            # CI run's Ctrl-C test sent it right after the bar) is lost; one after the bar stops the run
+            # optional dependency (app extra). Shown once the pool is up, since a Ctrl-C while the
+            # pool starts (SIGINT ignored, see _spawn_pool) is lost. Known open bug: a Ctrl-C after
+            # the bar but before any worker has finished starting can hang in pool.terminate()
             from tqdm import tqdm
 
             bar = tqdm(total=len(seeds), desc=desc, unit="episode", dynamic_ncols=True)
