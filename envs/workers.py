@@ -168,14 +168,18 @@ def _kill_daemonic_workers_at_exit() -> None:
 
 
 def _make_signal_safe(make: Callable, *args, **kwargs):
-    ignore_stop_signals()
+    # TorchRL also calls the factory in the main process (for the env's specs): ignoring the
+    # signals there left a run deaf to Ctrl-C and to its stop signals (measured: a parallel PushT
+    # env turned the main process's SIGINT, SIGTERM and SIGUSR1 handlers into SIG_IGN)
+    if multiprocessing.parent_process() is not None:
+        ignore_stop_signals()
     return make(*args, **kwargs)
 
 
 def signal_safe_factory(make: Callable) -> Callable:
-    """``make`` (a worker's env factory) run after :func:`ignore_stop_signals`, for workers that do
-    not come from :func:`simulator_forkserver` (whose children inherit it); picklable whenever
-    ``make`` is.
+    """``make`` (a worker's env factory) run after :func:`ignore_stop_signals` in a worker process
+    (the main process keeps its handlers), for workers that do not come from
+    :func:`simulator_forkserver` (whose children inherit it); picklable whenever ``make`` is.
 
     ``timeout``, SLURM, ``docker stop`` and Ctrl-C signal the whole process group. A worker (or the
     forkserver that forked it: multiprocessing then reports its live workers as exited with code

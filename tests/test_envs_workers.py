@@ -112,6 +112,36 @@ def test_a_broken_pipe_while_starting_names_the_guard():
         raise ValueError("unrelated")
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)
+
+
+@pytest.mark.parametrize(
+    "task, kwargs",
+    [
+        pytest.param("pusht_image", {"backend": "parallel"}, id="pusht"),
+        pytest.param("robosuite_lift", {"render": False}, marks=pytest.mark.robosuite, id="robosuite"),
+    ],
+)
+def test_making_worker_envs_leaves_the_main_processs_signal_handlers_alone(task, kwargs):
+    # the workers ignore the stop signals, but TorchRL also calls their factory in the main process
+    # (for the specs): a parallel PushT env once left this process deaf to Ctrl-C and to SIGTERM
+    pytest.importorskip({"pusht": "gym_pusht", "robosuite": "robosuite"}[task.split("_")[0]])
+    from l1flow_rl.envs import make_env
+
+    ours = {sig: signal.signal(sig, lambda *_: None) for sig in STOP_SIGNALS}  # as the run harness's
+    mine = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    try:
+        env = make_env(task, num_envs=2, **kwargs)
+        try:
+            env.reset()
+            assert {sig: signal.getsignal(sig) for sig in STOP_SIGNALS} == mine
+        finally:
+            env.close()
+    finally:
+        for sig, handler in ours.items():
+            signal.signal(sig, handler)
+
+
 STOPPABLE = """\
 import signal
 import sys

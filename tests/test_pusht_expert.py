@@ -196,14 +196,21 @@ def test_ctrl_c_stops_the_demo_workers_promptly(tmp_path):
         "demos.num=50",
         f"data_dir={tmp_path}",
     ]
-    # a terminal's process starts with SIGINT at its default; a test run launched in the background
-    # (``pytest &``) would hand down an ignored SIGINT, which the command rightly keeps ignoring
+
+    def start_like_a_launcher() -> None:
+        # a terminal's process starts with SIGINT at its default; a test run launched in the
+        # background (``pytest &``) would hand down an ignored SIGINT, which the command rightly
+        # keeps ignoring. SIGTERM comes ignored, as some launchers (and a full test run here) hand
+        # it down: the workers must still die on pool.terminate()'s SIGTERM, or it waits forever
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
     proc = subprocess.Popen(
         cmd,
         stdout=subprocess.DEVNULL,  # never read: a pipe could fill and block the command
         stderr=subprocess.PIPE,
         start_new_session=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        preexec_fn=start_like_a_launcher,
     )
     # stderr is drained all along (a full pipe would block the command's writes: a hang of the test's
     # making), and shown if the command outlives the guard

@@ -44,19 +44,34 @@ def _worker(seed: int, images: bool, image_size: int, max_steps: int) -> tuple[i
         return seed, None, f"{type(err).__name__}: {err}"
 
 
+def _ignore(signum, frame) -> None:
+    """SIGTERM's stand-in in the parent while the pool spawns: ignored here, default in the workers."""
+
+
 def _spawn_pool(workers: int) -> multiprocessing.pool.Pool:
-    """A spawn pool whose workers ignore SIGINT. Ctrl-C reaches the whole process group; only the
-    parent should handle it (and terminate the pool), not each worker with a traceback. Workers
-    start with the parent's ignored disposition (kept across exec, and Python leaves an ignored
-    SIGINT alone), which also covers a worker still importing when Ctrl-C comes."""
+    """A spawn pool whose workers ignore SIGINT and die on SIGTERM.
+
+    Ctrl-C reaches the whole process group; only the parent should handle it (and terminate the
+    pool), not each worker with a traceback. Workers start with the parent's ignored disposition
+    (kept across exec, and Python leaves an ignored SIGINT alone), which also covers a worker still
+    importing when Ctrl-C comes. ``pool.terminate()`` ends the workers with SIGTERM and then joins
+    them without a timeout, so a worker must not inherit an ignored SIGTERM (a parent started with
+    it ignored: measured, the Ctrl-C test hung for good in a full test run). A Python handler is not
+    inherited across exec, so a no-op one keeps SIGTERM ignored here while the workers start with
+    the default."""
     context = multiprocessing.get_context("spawn")
     if threading.current_thread() is not threading.main_thread():
         return context.Pool(workers)  # signal handlers belong to the main thread
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    previous_int = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    term_ignored = signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
+    if term_ignored:
+        signal.signal(signal.SIGTERM, _ignore)
     try:
         return context.Pool(workers)
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.signal(signal.SIGINT, previous_int)
+        if term_ignored:
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def run_episodes(
@@ -82,8 +97,7 @@ def run_episodes(
             results = pool.imap(job, seeds)
         if progress:
             # optional dependency (app extra). Shown once the pool is up, since a Ctrl-C while the
-            # pool starts (SIGINT ignored, see _spawn_pool) is lost. Known open bug: a Ctrl-C after
-            # the bar but before any worker has finished starting can hang in pool.terminate()
+            # pool starts (SIGINT ignored, see _spawn_pool) is lost
             from tqdm import tqdm
 
             bar = tqdm(total=len(seeds), desc=desc, unit="episode", dynamic_ncols=True)
