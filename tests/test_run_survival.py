@@ -4,6 +4,7 @@ naming the step with its last checkpoint finite, and a busy run directory refuse
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -53,11 +54,13 @@ def _start(args: list[str], log: Path) -> subprocess.Popen:
         )
 
 
-def _wait_for_step(proc: subprocess.Popen, log: Path, step: int, timeout: float = 120) -> None:
-    """Until the progress bar in ``log`` shows at least ``step`` steps done."""
+def _wait_for_step(
+    proc: subprocess.Popen, log: Path, step: int, timeout: float = 120, total: str = r"\d+"
+) -> None:
+    """Until the progress bar in ``log`` shows at least ``step`` of ``total`` steps done."""
     deadline = time.time() + timeout
     while time.time() < deadline:
-        done = [int(n) for n in re.findall(r"(\d+)/\d+ ", log.read_text())]
+        done = [int(n) for n in re.findall(rf"(\d+)/{total} ", log.read_text())]
         if done and max(done) >= step:
             return
         assert proc.poll() is None, f"the run ended early:\n{log.read_text()[-2000:]}"
@@ -65,9 +68,9 @@ def _wait_for_step(proc: subprocess.Popen, log: Path, step: int, timeout: float 
     raise AssertionError(f"step {step} not reached in {timeout} s:\n{log.read_text()[-2000:]}")
 
 
-def _stopped_at(text: str) -> int:
+def _stopped_at(text: str, job: str = "train") -> int:
     found = re.search(
-        r"^l1flow-rl train: stopped by SIGTERM at step (\d+); checkpoint \S+ holds it", text, re.M
+        rf"^l1flow-rl {job}: stopped by SIGTERM at step (\d+); checkpoint \S+ holds it", text, re.M
     )
     assert found, text[-2000:]
     return int(found.group(1))
@@ -169,3 +172,54 @@ def test_a_busy_run_directory_refuses_a_second_process_and_a_killed_ones_lock_do
     third.send_signal(signal.SIGTERM)
     assert third.wait(timeout=120) == 128 + signal.SIGTERM
     assert _stopped_at(log.read_text()) >= saved + 5
+
+
+ONLINE_STEPS = 600
+#: filtered BC online on the double: 60 warm-up env steps, then rounds of 60 (2 envs), 0.5 updates per
+#: env step, a checkpoint every 120 env steps
+FINETUNE = [
+    *TASK_OVERRIDES,
+    "finetune=filtered_bc",
+    "offline.steps=0",
+    f"online.steps={ONLINE_STEPS}",
+    "online.warmup_steps=60",
+    "online.num_envs=2",
+    "online.frames_per_round=60",
+    "online.updates_per_step=0.5",
+    "online.checkpoint_every=120",
+    "finetune.batch_size=16",
+    "eval.episodes=0",
+    "device=cpu",
+]
+
+
+def test_sigterm_during_online_fine_tuning_checkpoints_and_resumes_bit_exactly(tmp_path, data_dir):
+    # the online buffer's TorchRL storage installs its own SIGTERM handler (it deletes the buffer's
+    # files, then passes the signal on to ours), ahead of the harness's: the run must still finish
+    # the step, write its buffer into the checkpoint, and resume to the uninterrupted run's end
+    bc = tmp_path / "bc"
+    assert main(_args(data_dir, bc, "train.steps=30")) == 0
+    start = f"checkpoint={bc / 'checkpoints' / 'latest.pt'}"
+    straight_dir, run_dir, log = tmp_path / "straight", tmp_path / "run", tmp_path / "stderr.txt"
+    assert main(["finetune", start, f"data_dir={data_dir}", f"run_dir={straight_dir}", *FINETUNE]) == 0
+
+    proc = _start(["finetune", start, f"data_dir={data_dir}", f"run_dir={run_dir}", *FINETUNE], log)
+    _wait_for_step(proc, log, 250, total=str(ONLINE_STEPS))  # online, past the 240-step checkpoint
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=120) == 128 + signal.SIGTERM
+    text = log.read_text()
+    assert "Traceback" not in text
+    step = _stopped_at(text, "finetune")
+    assert 250 <= step < ONLINE_STEPS
+    assert load_checkpoint(run_dir / "checkpoints" / "latest.pt")["progress"]["env_steps"] == step
+
+    command = shlex.split(re.search(r"Resume with: (.*)$", text, re.M).group(1))
+    resumed_log = tmp_path / "resumed.txt"
+    assert _start(command[1:], resumed_log).wait(timeout=300) == 0, resumed_log.read_text()[-2000:]
+    straight = load_checkpoint(straight_dir / "checkpoints" / "latest.pt")
+    resumed = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
+    assert resumed["progress"] == straight["progress"] and straight["progress"]["env_steps"] == ONLINE_STEPS
+    model = straight["model"]
+    assert [k for k in model if not torch.equal(model[k], resumed["model"][k])] == []
+    # filtered BC has no critic: its critic columns hold NaN, which equals nothing, so compare as JSON
+    assert json.dumps(resumed["history"], sort_keys=True) == json.dumps(straight["history"], sort_keys=True)
