@@ -5,6 +5,7 @@ whole process group leaves the workers to the main process."""
 from __future__ import annotations
 
 import ast
+import json
 import os
 import signal
 import subprocess
@@ -236,3 +237,44 @@ def test_a_process_exits_with_an_env_it_never_closed(tmp_path):
     )
     assert proc.returncode == 0 and proc.stdout.strip() == "left open", proc.stderr[-3000:]
     assert "Traceback" not in proc.stderr  # the workers are killed, not left to fail on a closed pipe
+
+
+JOBS_THEN_CHILDREN = """\
+import json
+import multiprocessing
+import sys
+
+from l1flow_rl.cli import main
+
+if __name__ == "__main__":
+    for args in json.loads(sys.argv[1]):
+        rc = main(args)
+        print("CHILDREN", rc, sorted(c.name for c in multiprocessing.active_children()), flush=True)
+"""
+
+
+@pytest.mark.maniskill
+def test_train_and_eval_jobs_close_their_worker_envs(tmp_path):
+    # TorchRL's envs report is_closed=True until started (a TransformedEnv always): the evaluator
+    # closed only envs that said otherwise, so a train job's ManiSkill CPU workers (AsyncVectorEnv)
+    # ran on until the interpreter exit, where they once hung it for 30 minutes
+    pytest.importorskip("mani_skill")
+    script = tmp_path / "jobs.py"
+    script.write_text(JOBS_THEN_CHILDREN)
+    small = ["eval.episodes=2", "eval.num_envs=2", "task.max_episode_steps=20"]
+    run_dir = tmp_path / "run"
+    data = f"data_dir={tmp_path / 'data'}"
+    train = ["train", "task=maniskill_pushcube", "demos.num=3", "train.steps=10", data, f"run_dir={run_dir}"]
+    ckpt = f"checkpoint={run_dir / 'checkpoints' / 'latest.pt'}"
+    jobs = [[*train, *small], ["eval", ckpt, f"run_dir={tmp_path / 'eval'}", *small]]
+    proc = subprocess.run(
+        [sys.executable, str(script), json.dumps(jobs)],
+        cwd=tmp_path,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    found = [line for line in proc.stdout.splitlines() if line.startswith("CHILDREN")]
+    assert found == ["CHILDREN 0 []", "CHILDREN 0 []"], proc.stdout[-3000:]  # each job's rc, live children

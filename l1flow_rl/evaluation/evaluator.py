@@ -281,8 +281,8 @@ def evaluate(
         inner.train(was_training)
         if wrapper is not None:
             wrapper.actor = inner
-        if make is not None and not env.is_closed:
-            env.close()
+        if make is not None:  # not ``env.is_closed``: TorchRL's envs report True before they are closed
+            env.close(raise_if_closed=False)
     wall = time.perf_counter() - start
     return _summary(schedule.results, timed.latencies_s, calls.count, seed, wall, metrics)
 
