@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from ctrl_c import ctrl_c_after_the_progress_bar
 from l1flow_rl.envs.pusht import pusht_reader_options
 from l1flow_rl.envs.pusht.geometry import block_keypoints, reset_state_for
 
@@ -180,72 +181,5 @@ def test_ctrl_c_stops_the_demo_workers_promptly(tmp_path):
     """SIGINT reaches the whole process group; the spawned workers ignore it and the parent ends the
     pool, so ``l1flow-rl demos`` exits with 130 in seconds, quietly (no traceback from each worker),
     and leaves no worker running."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import threading
-    import time
-
-    cmd = [
-        sys.executable,
-        "-m",
-        "l1flow_rl.cli",
-        "demos",
-        "task=pusht",
-        "demos.num=50",
-        f"data_dir={tmp_path}",
-    ]
-
-    def start_like_a_launcher() -> None:
-        # a terminal's process starts with SIGINT at its default; a test run launched in the
-        # background (``pytest &``) would hand down an ignored SIGINT, which the command rightly
-        # keeps ignoring. SIGTERM comes ignored, as some launchers (and a full test run here) hand
-        # it down: the workers must still die on pool.terminate()'s SIGTERM, or it waits forever
-        signal.signal(signal.SIGINT, signal.SIG_DFL)
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-
-    proc = subprocess.Popen(
-        cmd,
-        stdout=subprocess.DEVNULL,  # never read: a pipe could fill and block the command
-        stderr=subprocess.PIPE,
-        start_new_session=True,
-        preexec_fn=start_like_a_launcher,
-    )
-    # stderr is drained all along (a full pipe would block the command's writes: a hang of the test's
-    # making), and shown if the command outlives the guard
-    chunks: list[str] = []
-    fd = proc.stderr.fileno()  # raw reads: the progress bar redraws with \r, not newlines
-
-    def read_all() -> None:
-        for chunk in iter(lambda: os.read(fd, 4096), b""):
-            chunks.append(chunk.decode(errors="replace"))
-
-    drain = threading.Thread(target=read_all, daemon=True)
-    drain.start()
-    try:
-        deadline = time.monotonic() + 120
-        while not any("episode" in c for c in chunks):  # the progress bar is up: the pool has started
-            assert proc.poll() is None, "".join(chunks)
-            assert time.monotonic() < deadline, "no progress bar within 120 s"
-            time.sleep(0.1)
-        time.sleep(3)  # workers are mid-episode
-        os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does
-        try:
-            rc = proc.wait(timeout=90)  # a hang guard; a loaded machine took over 30 s
-        except subprocess.TimeoutExpired:
-            pytest.fail(f"still running 90 s after Ctrl-C; its stderr:\n{''.join(chunks)[-3000:]}")
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    drain.join(timeout=10)
-    assert rc == 130
-    rest = "".join(chunks)
-    assert "interrupted" in rest
-    assert "Traceback" not in rest, f"the workers were interrupted mid-episode too:\n{rest[-2000:]}"
+    ctrl_c_after_the_progress_bar(["task=pusht", "demos.num=50", f"data_dir={tmp_path}"], "episode")
     assert not list((tmp_path / "pusht").glob("*.zarr")), "an interrupted run must not leave a demo store"
-    time.sleep(1)
-    ps = subprocess.run(["ps", "-o", "pid=,stat=,args=", "-s", str(proc.pid)], capture_output=True, text=True)
-    # zombies are not running; they wait for the container's init to reap them
-    alive = [line for line in ps.stdout.splitlines() if line.split()[1][0] != "Z"]
-    assert not alive, f"workers outlived the interrupted command: {alive}"

@@ -7,6 +7,7 @@ import json
 import h5py
 import numpy as np
 import pytest
+from ctrl_c import ctrl_c_after_the_progress_bar
 from scipy.spatial.transform import Rotation
 
 pytest.importorskip("robosuite")
@@ -80,3 +81,10 @@ def test_demos_command_then_train_end_to_end(tmp_path):
     assert result["episodes"] == 1 and result["success_once"] in (0.0, 1.0)
     assert result["protocol"]["max_episode_steps"] == 40
     assert (run / "checkpoints" / "latest.pt").is_file()
+
+
+def test_ctrl_c_stops_the_demo_workers_quietly(tmp_path):
+    # the forkserver's workers ignore Ctrl-C (the main process reports it once) and the pool drops its
+    # queued episodes: before, each worker printed its own KeyboardInterrupt traceback
+    ctrl_c_after_the_progress_bar(["task=robosuite_lift", "demos.num=30", f"data_dir={tmp_path}"], "demo/s")
+    assert not list(tmp_path.rglob("*.hdf5")), "an interrupted run must not leave a demo file"

@@ -5,9 +5,12 @@ small batches and tests)."""
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import multiprocessing
 import os
-from collections.abc import Callable
+import signal
+import threading
+from collections.abc import Callable, Iterator
 
 from l1flow_rl.envs.robosuite.sim import choose_gl
 from l1flow_rl.envs.workers import restore_stop_signals, simulator_forkserver
@@ -44,11 +47,55 @@ def worker_pool(workers: int, initializer: Callable[..., None], initargs: tuple 
         initializer(*initargs)
         return InProcessExecutor()
     ctx = multiprocessing.get_context(forkserver())
-    return cf.ProcessPoolExecutor(
+    pool = cf.ProcessPoolExecutor(
         workers, mp_context=ctx, initializer=_pool_worker, initargs=(initializer, *initargs)
     )
+    # Start every worker now, with Ctrl-C deferred: a Ctrl-C inside a worker's start (the first
+    # waits for the forkserver to import robosuite) left that worker unknown to the pool, and it
+    # failed with a FileNotFoundError traceback on the pool's semaphores once this process had gone.
+    # Each of the first ``workers`` submissions finds no idle worker, so it starts one.
+    try:
+        with _sigint_deferred():
+            for _ in range(workers):
+                pool.submit(_ready)
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    return pool
+
+
+@contextlib.contextmanager
+def _sigint_deferred() -> Iterator[None]:
+    """Ctrl-C inside the block is held, not lost: its KeyboardInterrupt comes when the block ends.
+
+    Two parts, both needed. SIGINT is blocked in this thread, a mask that the forkserver this block
+    may start inherits (a handler is not): a Ctrl-C while the server imported robosuite killed it,
+    and the pool failed with EOFError. And a handler only records it, because the kernel may
+    deliver it to another thread (tqdm's monitor), from where Python would still interrupt this one
+    mid-``submit``."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signal handlers belong to the main thread
+        return
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a held Ctrl-C is recorded here
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
+
+
+def _ready() -> None:
+    """A worker's first call: nothing, its start is the point."""
 
 
 def _pool_worker(initializer: Callable[..., None], *initargs) -> None:
-    restore_stop_signals()  # the forkserver ignores them; the demos' main process does not handle them
+    # the forkserver ignores the stop signals; the demos' main process does not handle SIGTERM or
+    # SIGUSR1, so a group's signal ends the workers with it. Ctrl-C stays ignored: the main process
+    # handles it (its message, the pool's shutdown), not each worker with a traceback
+    restore_stop_signals()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     initializer(*initargs)
