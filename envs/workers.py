@@ -141,10 +141,13 @@ def ignore_stop_signals() -> None:
 
 
 def restore_stop_signals() -> None:
-    """Undo :func:`ignore_stop_signals` (what a forkserver's children inherit): for pool workers, whose
-    main process does not supervise them, so that a group's signal ends them with it."""
+    """Undo :func:`ignore_stop_signals` (what a forkserver's children inherit) for SIGTERM and SIGUSR1:
+    for pool workers, whose main process does not handle those, so that a group's signal ends them
+    with it. Ctrl-C stays ignored: the main process reports it once and shuts its pool down, instead
+    of every worker printing a KeyboardInterrupt traceback."""
     for sig in WORKER_IGNORED_SIGNALS:
-        signal.signal(sig, signal.default_int_handler if sig == signal.SIGINT else signal.SIG_DFL)
+        if sig != signal.SIGINT:
+            signal.signal(sig, signal.SIG_DFL)
 
 
 @functools.cache

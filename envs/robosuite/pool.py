@@ -93,9 +93,5 @@ def _ready() -> None:
 
 
 def _pool_worker(initializer: Callable[..., None], *initargs) -> None:
-    # the forkserver ignores the stop signals; the demos' main process does not handle SIGTERM or
-    # SIGUSR1, so a group's signal ends the workers with it. Ctrl-C stays ignored: the main process
-    # handles it (its message, the pool's shutdown), not each worker with a traceback
-    restore_stop_signals()
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    restore_stop_signals()  # the forkserver ignores them; the demos' main process does not handle them
     initializer(*initargs)
