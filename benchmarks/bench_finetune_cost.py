@@ -1,15 +1,16 @@
 """Where a fine-tuning update's time goes on this machine, and what acting costs the env loop.
 
-For QC, FQL and DSRL (their presets, ``configs/finetune/``) at batch 256 with the task's policy network
-(``PolicyConfig``: the ManiSkill-sized UNet, down_dims 64/128/256) on the task's observation and action
-sizes, the parts of one update of every setting are timed in alternation, all settings in one loop
+For QC, FQL, DSRL and DSRL-NA (their presets, ``configs/finetune/``) at batch 256 with the task's policy
+network (``PolicyConfig``: the ManiSkill-sized UNet, down_dims 64/128/256) on the task's observation and
+action sizes, the parts of one update of every setting are timed in alternation, all settings in one loop
 (``benchmarks.common.interleaved``):
 
 * ``targets``: the TD target (QC: N proposals at s' by the 2-NFE sampler, the online critics' pick,
   the target critics' value; FQL: mu at s'; DSRL: the noise actor at s'), and within it
-  ``proposals_2nfe`` (QC: the flow on 256 x N chunks) alone;
+  ``proposals_2nfe`` (QC: the flow on 256 x N chunks) alone; DSRL-NA: the actor's w' decoded at s';
 * ``critic_fwd_bwd``: the critics' regression onto a fixed target, forward and backward;
 * ``actor_fwd_bwd``: FQL's mu loss (with its 2-NFE teacher), DSRL's noise-actor and temperature losses;
+* ``distill_fwd_bwd``: DSRL-NA's noise critic fitted to the action critic (cached chunks: timed warm);
 * ``bc_fwd_bwd``: the flow's L1 Flow loss (QC, FQL);
 * ``update``: the whole update as the loop runs it (losses, backward, Adam, SoftUpdate).
 
@@ -61,6 +62,10 @@ DESIGN = {
         "preset's UTD 1"
     ),
     "dsrl_critic_2x256_over_dsrl_update": "DSRL's remaining cost is its MLPs: 2 x 256 critics halve it",
+    "dsrl_na_over_dsrl_update": (
+        "DSRL-NA's bootstrap decodes the actor's w' at every next state (one 2-NFE call at the batch); its "
+        "distillation's chunks are cached per state (timed warm): the online runs here take batch 128"
+    ),
     "env": "acting: QC's 32 proposals per chunk cost most (0.29x raw), FQL's one MLP call least (0.79x)",
 }
 
@@ -119,6 +124,9 @@ def parts(loss, data: TensorDict) -> dict:
             sum(v for v in out if isinstance(v, torch.Tensor) and v.requires_grad).backward()
 
         fns["actor_fwd_bwd"] = actor_fwd_bwd
+    if hasattr(loss, "distill_loss"):
+        loss.distill_loss(data)  # each state's chunks decoded once: the timed calls are warm, as in a run
+        fns["distill_fwd_bwd"] = lambda: loss.distill_loss(data)[0].backward()
     if getattr(loss, "bc_loss", None) is not None:
         fns["bc_fwd_bwd"] = lambda: loss.bc_loss(data)[loss.bc_loss.loss_name].backward()
     return fns
@@ -155,6 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         "fql": ("fql", []),
         "dsrl": ("dsrl", []),
         "dsrl_critic_2x256": ("dsrl", small),
+        "dsrl_na": ("dsrl_na", []),
     }
     # every setting's parts take turns in one interleaved loop, so that load drifting on the shared
     # machine hits the settings alike and the ratios between settings stay fair
@@ -181,6 +190,7 @@ def main(argv: list[str] | None = None) -> int:
                 "critic_fwd_bwd",
                 "actor_fwd_bwd",
                 "bc_fwd_bwd",
+                "distill_fwd_bwd",
             ],
         )
     )
@@ -235,6 +245,7 @@ def main(argv: list[str] | None = None) -> int:
             "fql_over_qc_update": ratio("fql", "qc"),
             "dsrl_over_qc_update": ratio("dsrl", "qc"),
             "dsrl_critic_2x256_over_dsrl_update": ratio("dsrl_critic_2x256", "dsrl"),
+            "dsrl_na_over_dsrl_update": ratio("dsrl_na", "dsrl"),
         },
         "updates_per_s": {k: round(1e3 / v["update"], 2) for k, v in timings.items()},
         "design": DESIGN,

@@ -8,7 +8,7 @@ from omegaconf import OmegaConf
 
 from l1flow_rl.cli import compose_config
 from l1flow_rl.config.validate import ConfigValidationError
-from l1flow_rl.objectives import DSRLLoss, FQLLoss, QCLoss
+from l1flow_rl.objectives import DSRLLoss, DSRLNALoss, FQLLoss, QCLoss
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 
 
@@ -18,6 +18,7 @@ from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
         ("qc", QCLoss, "mean", 0.5),
         ("fql", FQLLoss, "mean", 0.5),
         ("dsrl", DSRLLoss, "min", 0.0),
+        ("dsrl_na", DSRLNALoss, "min", 0.5),
     ],
 )
 def test_presets_compose_validate_and_build_their_loss(preset, loss_cls, q_agg, offline_fraction):
@@ -38,7 +39,7 @@ def test_bad_fine_tuning_settings_fail_at_config_time_naming_the_field():
     with pytest.raises(
         ConfigValidationError,
         match=r"finetune\.algorithm='sac': expected one of "
-        r"\['dsrl', 'filtered_bc', 'fql', 'qc'\]",
+        r"\['dsrl', 'dsrl_na', 'filtered_bc', 'fql', 'qc'\]",
     ):
         compose_config(["finetune=qc", "finetune.algorithm=sac"], command="finetune")
     with pytest.raises(ConfigValidationError, match=r"offline\.steps=100: finetune\.algorithm=dsrl"):

@@ -237,6 +237,32 @@ def test_steering_online_stores_the_chunk_input_and_leaves_the_flow_as_it_was(
     assert fractions and min(fractions) > 0.5, fractions
 
 
+def test_dsrl_na_learns_from_demonstrations_with_the_flow_frozen_and_resumes_exactly(
+    tmp_path, data_dir, bc_checkpoint, monkeypatch
+):
+    """DSRL-NA's action critic trains on the demonstrations (offline updates, then half of each online
+    batch), the steering actor acts, the flow stays the BC checkpoint's, and a run killed mid-way
+    resumes to the uninterrupted run's weights (the distillation's cached noises are redrawn alike)."""
+    na = ("finetune=dsrl_na", "finetune.dsrl_na.actor_hidden_dims=[32]", "finetune.dsrl_na.distill_samples=2")
+    straight_dir = tmp_path / "straight"
+    assert main(_args(straight_dir, data_dir, bc_checkpoint, *na, "eval.episodes=0")) == 0
+    straight = load_checkpoint(straight_dir / "checkpoints" / "latest.pt")
+    assert straight["progress"]["offline_updates"] == 4 and straight["progress"]["online_updates"] == 4
+    actor, _ = load_actor(straight_dir / "checkpoints" / "latest.pt")
+    assert isinstance(actor, NoiseActor)
+    bc = load_checkpoint(bc_checkpoint)
+    flow = {k[len("flow.") :]: v for k, v in straight["model"].items() if k.startswith("flow.")}
+    assert flow and all(torch.equal(v, bc["ema"][k]) for k, v in flow.items())  # frozen
+    # every window is valued by its executed actions (no chunk-start filter as plain DSRL's)
+    logged = (straight_dir / "logs" / "finetune" / "scalars" / "online" / "valid_fraction.csv").read_text()
+    assert min(float(line.split(",")[1]) for line in logged.split()) > 0.5
+    run_dir = tmp_path / "run"
+    resumed = _killed_and_resumed(
+        run_dir, _args(run_dir, data_dir, bc_checkpoint, *na, "eval.episodes=0"), monkeypatch
+    )
+    _assert_same_run(resumed, straight)
+
+
 def test_filtered_bc_trains_the_flow_on_demonstrations_and_successful_episodes_only(
     tmp_path, data_dir, bc_checkpoint
 ):

@@ -9,9 +9,19 @@ import torch
 from tensordict import TensorDict
 from test_data_rl import GAMMA, make_episodes
 
-from l1flow_rl import ChunkCriticLoss, DSRLLoss, FQLLoss, L1FlowActor, NoiseActor, OneStepActor, QCLoss
+from l1flow_rl import (
+    ChunkCriticLoss,
+    DSRLLoss,
+    DSRLNALoss,
+    FQLLoss,
+    L1FlowActor,
+    NoiseActor,
+    OneStepActor,
+    QCLoss,
+)
 from l1flow_rl.data import make_chunk_buffer
 from l1flow_rl.networks.critic import ChunkCritic
+from l1flow_rl.proposal_cache import ProposalCache
 
 H_EXEC = 4
 
@@ -32,6 +42,15 @@ def linear_critic(flow, input_shape, biases, action_weight=0.0, normalize_input=
         layer.weight[:, obs_part:] = action_weight
         layer.bias.copy_(torch.tensor(biases, dtype=torch.float32).reshape(-1, 1, 1))
     return critic
+
+
+def train(loss, optim, batch, steps: int) -> None:
+    """``steps`` updates of every ``loss_*`` term of ``loss`` on one batch."""
+    for _ in range(steps):
+        out = loss(batch)
+        optim.zero_grad()
+        sum(v for k, v in out.items() if k.startswith("loss_")).backward()
+        optim.step()
 
 
 def window_batch(h=H_EXEC):
@@ -171,11 +190,7 @@ def test_steering_noise_stays_in_bounds_and_the_flow_stays_unchanged():
     # towards the bound
     batch["noise"] = torch.rand(64, 8, 3) * 3 - 1.5
     batch["next", "reward"] = batch["noise"].sum((1, 2)).unsqueeze(-1)
-    for _ in range(60):
-        out = loss(batch)
-        optim.zero_grad()
-        sum(v for k, v in out.items() if k.startswith("loss_")).backward()
-        optim.step()
+    train(loss, optim, batch, 60)
     for k, v in flow.state_dict().items():
         assert torch.equal(v, before[k]), k
     acted = steer(TensorDict({"observation": torch.randn(256, 2, 2)}, [256]))
@@ -243,9 +258,9 @@ def test_frozen_qc_draws_each_observations_proposals_once_and_reproducibly():
     obs = flow.policy.as_obs_dict(torch.randn(6, 2, 2))
     repeated = obs[[0, 1, 2, 3, 4, 5, 0, 0]]  # a batch may hold one observation twice
     first = loss.next_value(None, repeated)
-    assert calls == [6] and len(loss.proposal_cache) == 6
+    assert calls == [16] and len(loss.proposal_cache) == 6  # one block of 16 (6 observations, padded)
     assert loss.next_value(None, obs[[5, 0]]).tolist() == first[[5, 0]].tolist()
-    assert calls == [6]  # served from the cache: no flow call
+    assert calls == [16]  # served from the cache: no flow call
     cache = loss.proposal_cache
     assert (cache.hits, cache.misses) == (4, 6)
     out = loss(window_batch()[:16])
@@ -263,8 +278,120 @@ def test_frozen_qc_draws_each_observations_proposals_once_and_reproducibly():
         real_propose(obs, noise=torch.zeros(6, 4, 8, 3))
 
 
+def test_cached_proposals_do_not_depend_on_the_batch_they_were_drawn_in():
+    """An observation met alone, or among 40 others, gets the same proposals bit for bit (the UNet's
+    batched kernels round differently at other batch sizes): what makes a resumed run exact."""
+    torch.manual_seed(0)
+    flow = L1FlowActor.for_state(
+        obs_dim=5, action_dim=4, action_steps=H_EXEC, down_dims=(16, 32), timestep_embed_dim=16
+    )
+    critic = ChunkCritic.from_policy(flow, input_shape=(H_EXEC, 4), hidden_dims=(8,))
+    obs = flow.policy.as_obs_dict(torch.randn(40, 2, 5))
+    together = QCLoss(flow, critic, num_samples=3, freeze_flow=True).proposal_cache(obs)
+    for rows in ([7], [3, 30, 12], list(range(20, 37))):
+        alone = QCLoss(flow, critic, num_samples=3, freeze_flow=True).proposal_cache(obs[rows])
+        assert torch.equal(alone, together[rows]), rows
+    with pytest.raises(ValueError, match="block must be >= 1"):
+        ProposalCache(lambda obs, noise: noise, noise_shape=(3, 16, 4), block=0)
+
+
 def test_unfrozen_qc_keeps_no_cache():
     flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
     critic = ChunkCritic.from_policy(flow, input_shape=(H_EXEC, 3), hidden_dims=(16,))
     loss = QCLoss(flow, critic, num_samples=4)
     assert loss.proposal_cache is None and "proposal_cache_hit_rate" not in loss(window_batch()[:8])
+
+
+def _dsrl_na(flow, critic, noise_critic=None, **kwargs):
+    steer = NoiseActor.from_flow(flow, bound=1.5, hidden_dims=(16,))
+    noise_critic = noise_critic or ChunkCritic.from_policy(
+        flow, input_shape=(8, 3), hidden_dims=(16,), normalize_input=False
+    )
+    return DSRLNALoss(steer, critic, noise_critic, **kwargs)
+
+
+def test_dsrl_na_bootstraps_the_action_critic_on_the_decoded_steering_noise():
+    """y = R_h + gamma^h (1 - terminated) (min Qbar^A(s', decode(s', w')) - alpha log pi(w' | s')), at
+    both episode ends; the chunk valued is the flow's decoding of the actor's w', clipped to the bound."""
+    torch.manual_seed(0)
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    loss = _dsrl_na(flow, linear_critic(flow, (H_EXEC, 3), biases=[1.0, 3.0]), gamma=GAMMA, init_alpha=0.5)
+    log_prob = -2.0
+    loss._sample = lambda obs: (torch.full((obs.shape[0], 8, 3), 9.0), torch.full((obs.shape[0],), log_prob))
+    batch = window_batch()
+    target = loss.td_target(batch)
+    q_next = 1.0 - 0.5 * log_prob  # min over the constant members, minus alpha log pi
+    for i in range(batch.shape[0]):
+        e, t = int(batch["episode"][i]), int(batch["step"][i])
+        assert target[i].item() == pytest.approx(hand_target(e, t, q_next), rel=1e-5), (e, t)
+    # with an action-weighted target critic, the value is that of the chunk decoded from the clipped w'
+    with torch.no_grad():
+        loss.target_qvalue_network_params["module", "heads", "layers", "0", "weight"][:, -H_EXEC * 3 :] = 1.0
+    obs = flow.policy.as_obs_dict(torch.randn(5, 2, 2))
+    chunk = loss.executed(loss.actor.decode(obs, torch.full((5, 8, 3), 1.5)))
+    expected = torch.minimum(chunk.sum((1, 2)) + 1.0, chunk.sum((1, 2)) + 3.0) - 0.5 * log_prob
+    assert torch.allclose(loss.next_value(None, obs), expected, atol=1e-5)
+
+
+def test_dsrl_na_distils_the_action_critic_of_each_cached_noises_chunk():
+    """Q^W is fitted on each observation's cached noises against min Q^A of their decoded chunks; the
+    noises are drawn and decoded once per observation, and a fresh cache draws the same ones."""
+    torch.manual_seed(0)
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    critic = linear_critic(flow, (H_EXEC, 3), biases=[0.0, 2.0], action_weight=1.0)
+    loss = _dsrl_na(flow, critic, distill_samples=3, cache_seed=5)
+    batch = window_batch()[:16]
+    obs = loss.read_observation(batch, "observation")
+    keys = loss.proposal_cache.keys(obs)
+    noise = torch.stack([loss.proposal_cache.noise(k) for k in keys]).clamp(-1.5, 1.5)  # [16, 3, 8, 3]
+    flat = obs.unsqueeze(1).expand(16, 3, *obs.shape[1:]).reshape(48, *obs.shape[1:])
+    chunks = loss.executed(loss.actor.decode(flat, noise.flatten(0, 1)))
+    expected = chunks.sum((1, 2)).mean()  # min over the members: the bias-0 one
+    out = loss(batch)
+    assert out["distill_target_mean"].item() == pytest.approx(expected.item(), rel=1e-5)
+    distinct = len(set(keys))
+    assert len(loss.proposal_cache) == distinct and loss.proposal_cache.misses == distinct
+    loss(batch)
+    assert loss.proposal_cache.misses == distinct  # served from the cache: no new decoding
+    # the distillation's gradient reaches the noise critic only, the actor's the noise policy only
+    loss.zero_grad()
+    out = loss(batch)
+    out["loss_noise_qvalue"].backward()
+    grads = lambda params: [p.grad for p in params.values(True, True)]  # noqa: E731
+    assert all(g is None or g.abs().sum() == 0 for g in grads(loss.qvalue_network_params))
+    assert any(g is not None and g.abs().sum() > 0 for g in grads(loss.noise_qvalue_network_params))
+    assert all(g is None for g in grads(loss.actor_network_params))
+    again = _dsrl_na(flow, critic, distill_samples=3, cache_seed=5)
+    assert torch.equal(again.proposal_cache(obs), loss.proposal_cache(obs))
+
+
+def test_dsrl_na_steers_within_the_bound_and_leaves_the_flow_as_it_was():
+    torch.manual_seed(0)
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    before = {k: v.clone() for k, v in flow.state_dict().items()}
+    critic = ChunkCritic.from_policy(flow, input_shape=(H_EXEC, 3), hidden_dims=(32,))
+    loss = _dsrl_na(flow, critic, gamma=GAMMA)
+    assert not {id(p) for p in flow.parameters()} & {id(p) for p in loss.parameters()}
+    steer_before = {k: v.clone() for k, v in loss.actor.noise_policy.state_dict().items()}
+    optim = torch.optim.Adam(loss.parameters(), lr=1e-2)
+    batch = window_batch()[:32]
+    batch["next", "reward"] = batch["action_chunk"][:, 1:5].sum((1, 2)).unsqueeze(-1)  # pays for actions
+    train(loss, optim, batch, 10)
+    for k, v in flow.state_dict().items():
+        assert torch.equal(v, before[k]), k
+    assert any(not torch.equal(v, steer_before[k]) for k, v in loss.actor.noise_policy.state_dict().items())
+    acted = loss.actor(TensorDict({"observation": torch.randn(64, 2, 2)}, [64]))
+    assert acted["noise_chunk"].abs().max() <= 1.5
+
+
+def test_dsrl_na_checks_its_critics_shapes():
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
+    action_critic = ChunkCritic.from_policy(flow, input_shape=(H_EXEC, 3), hidden_dims=(8,))
+    window_noise = ChunkCritic.from_policy(flow, input_shape=(4, 3), hidden_dims=(8,), normalize_input=False)
+    with pytest.raises(ValueError, match=r"noise critic .* input_shape=\[8, 3\] and normalize_input=False"):
+        _dsrl_na(flow, action_critic, window_noise)
+    raw = ChunkCritic.from_policy(flow, input_shape=(H_EXEC, 3), hidden_dims=(8,), normalize_input=False)
+    with pytest.raises(ValueError, match="action critic values executed chunks"):
+        _dsrl_na(flow, raw)
+    with pytest.raises(ValueError, match="distill_samples must be >= 1"):
+        _dsrl_na(flow, action_critic, distill_samples=0)

@@ -19,6 +19,7 @@ MODULES = [
     "l1flow_rl.objectives.chunk_critic",
     "l1flow_rl.objectives.diffusion",
     "l1flow_rl.objectives.dsrl",
+    "l1flow_rl.objectives.dsrl_na",
     "l1flow_rl.objectives.filtered_bc",
     "l1flow_rl.objectives.finetune_registry",
     "l1flow_rl.objectives.flow_matching",

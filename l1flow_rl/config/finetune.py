@@ -1,4 +1,4 @@
-"""Fine-tuning settings (``l1flow-rl finetune finetune=qc|fql|dsrl checkpoint=...``): the algorithm and its
+"""Fine-tuning settings (``l1flow-rl finetune finetune=<preset> checkpoint=...``): the algorithm and its
 critic (``finetune``, one block of knobs per algorithm), the offline updates before any env step
 (``offline``) and the online loop (``online``).
 
@@ -16,6 +16,7 @@ __all__ = [
     "CHECKS",
     "CHOICES",
     "REWARD_KEYS",
+    "DSRLNASettings",
     "DSRLSettings",
     "FQLSettings",
     "FilteredBCSettings",
@@ -61,6 +62,13 @@ class DSRLSettings:
 
 
 @dataclass
+class DSRLNASettings(DSRLSettings):
+    # noises per observation the noise critic is fitted on, decoded once (the flow is frozen; DSRL-NA
+    # draws one fresh noise per state at every distillation step, a flow call per update on 2 cores)
+    distill_samples: int = 4
+
+
+@dataclass
 class FilteredBCSettings:
     """Filtered BC has no knob of its own: the L1 Flow loss on demonstrations and successful online
     episodes (``finetune.lr``, ``finetune.batch_size`` and the ``online`` block set its schedule)."""
@@ -68,7 +76,7 @@ class FilteredBCSettings:
 
 @dataclass
 class FinetuneConfig:
-    algorithm: str = "qc"  # a registered algorithm: qc | fql | dsrl | filtered_bc
+    algorithm: str = "qc"  # a registered algorithm: qc | fql | dsrl | dsrl_na | filtered_bc
     gamma: float = 0.99
     tau: float = 0.005  # Polyak rate of the target critics (TorchRL SoftUpdate)
     lr: float = 3.0e-4  # Adam, every network
@@ -85,6 +93,7 @@ class FinetuneConfig:
     qc: QCSettings = field(default_factory=QCSettings)
     fql: FQLSettings = field(default_factory=FQLSettings)
     dsrl: DSRLSettings = field(default_factory=DSRLSettings)
+    dsrl_na: DSRLNASettings = field(default_factory=DSRLNASettings)
     filtered_bc: FilteredBCSettings = field(default_factory=FilteredBCSettings)
     log_every: int = 50  # updates
 

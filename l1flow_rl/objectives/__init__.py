@@ -1,11 +1,12 @@
 """TorchRL losses for chunk policies, one per file: L1 Flow and its baselines (behaviour cloning), the
-fine-tuning losses QC, FQL and DSRL on one shared chunk-critic TD loss, and filtered BC (no critic). The
-behaviour-cloning losses are registered by name for ``policy.loss`` (:mod:`.registry`)."""
+fine-tuning losses QC, FQL, DSRL and DSRL-NA on one shared chunk-critic TD loss, and filtered BC (no
+critic). The behaviour-cloning losses are registered by name for ``policy.loss`` (:mod:`.registry`)."""
 
 from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
 from l1flow_rl.objectives.diffusion import DiffusionLoss
 from l1flow_rl.objectives.dsrl import DSRLLoss
+from l1flow_rl.objectives.dsrl_na import DSRLNALoss
 from l1flow_rl.objectives.filtered_bc import FilteredBCLoss
 from l1flow_rl.objectives.flow_matching import FlowMatchingLoss
 from l1flow_rl.objectives.fql import FQLLoss
@@ -18,6 +19,7 @@ __all__ = [
     "ChunkCriticLoss",
     "ChunkLossBase",
     "DSRLLoss",
+    "DSRLNALoss",
     "DiffusionLoss",
     "FQLLoss",
     "FilteredBCLoss",

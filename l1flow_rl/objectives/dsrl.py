@@ -25,7 +25,19 @@ from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.noise_actor import NoiseActor, NoisePolicy
 from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 
-__all__ = ["DSRLLoss"]
+__all__ = ["DSRLLoss", "sac_actor_terms"]
+
+
+def sac_actor_terms(
+    log_alpha: Tensor, log_prob: Tensor, q: Tensor, target_entropy: float
+) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+    """SAC's actor and temperature losses from log pi(w | s) [N] of reparameterised draws and their value
+    [N] under critics whose parameters are detached, with the detached diagnostics."""
+    alpha = log_alpha.exp()
+    loss_actor = (alpha.detach() * log_prob - q).mean()
+    loss_alpha = -(log_alpha * (log_prob.detach() + target_entropy)).mean()
+    out = {"alpha": alpha.detach(), "entropy": -log_prob.mean().detach(), "q_actor_mean": q.mean().detach()}
+    return loss_actor, loss_alpha, out
 
 
 @add_example(
@@ -147,15 +159,7 @@ class DSRLLoss(ChunkCriticLoss):
         q = self.q(obs, w, detach=True)
         # an ensemble with drawn target members (RLPD): the actor climbs the members' mean
         q = q.mean(-1) if self.target_critics is not None else self.aggregate(q)
-        alpha = self.log_alpha.exp()
-        loss_actor = (alpha.detach() * log_prob - q).mean()
-        loss_alpha = -(self.log_alpha * (log_prob.detach() + self.target_entropy)).mean()
-        out = {
-            "alpha": alpha.detach(),
-            "entropy": -log_prob.mean().detach(),
-            "q_actor_mean": q.mean().detach(),
-        }
-        return loss_actor, loss_alpha, out
+        return sac_actor_terms(self.log_alpha, log_prob, q, self.target_entropy)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         loss_q, out = self.qvalue_loss(tensordict)

@@ -27,6 +27,7 @@ from torchrl.objectives import LossModule
 
 from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.config.finetune import (
+    DSRLNASettings,
     DSRLSettings,
     FilteredBCSettings,
     FQLSettings,
@@ -35,6 +36,7 @@ from l1flow_rl.config.finetune import (
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.noise_actor import NoiseActor
 from l1flow_rl.objectives.dsrl import DSRLLoss
+from l1flow_rl.objectives.dsrl_na import DSRLNALoss
 from l1flow_rl.objectives.filtered_bc import FilteredBCLoss
 from l1flow_rl.objectives.fql import FQLLoss
 from l1flow_rl.objectives.qc import QCLoss
@@ -171,6 +173,20 @@ def _build_dsrl(flow: L1FlowActor, cfg: DictConfig) -> DSRLLoss:
     )
 
 
+def _build_dsrl_na(flow: L1FlowActor, cfg: DictConfig) -> DSRLNALoss:
+    s = cfg.dsrl_na
+    steer = NoiseActor.from_flow(flow, bound=float(s.noise_bound), hidden_dims=tuple(s.actor_hidden_dims))
+    return DSRLNALoss(
+        steer,
+        _critic(flow, cfg, (_horizon(flow, cfg), flow.policy.action_dim)),
+        _critic(flow, cfg, steer.noise_policy.noise_shape, normalize_input=False),
+        target_entropy=float(s.target_entropy),
+        init_alpha=float(s.init_alpha),
+        distill_samples=int(s.distill_samples),
+        **_common(cfg),
+    )
+
+
 def _build_filtered_bc(flow: L1FlowActor, cfg: DictConfig) -> FilteredBCLoss:
     return FilteredBCLoss(flow, rl_horizon=int(cfg.rl_horizon) or None)
 
@@ -192,6 +208,11 @@ _STEERING = {
     "uses_offline_data": False,
 }
 register_finetune_algorithm(FinetuneAlgorithm("dsrl", DSRLLoss, DSRLSettings, _build_dsrl, **_STEERING))
+# DSRL-NA's action critic values the executed actions of any window, demonstrations included: it
+# stores nothing beyond the core entries and reads every window
+register_finetune_algorithm(
+    FinetuneAlgorithm("dsrl_na", DSRLNALoss, DSRLNASettings, _build_dsrl_na, _STEERING["start_actor"])
+)
 register_finetune_algorithm(
     FinetuneAlgorithm(
         "filtered_bc",
