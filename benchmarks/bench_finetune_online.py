@@ -42,8 +42,9 @@ CPU_BUDGET: dict[str, list[str]] = {
     "fql": ["online.updates_per_step=0.25"],
     # an update takes 0.09 s (no flow call): the preset's 0.25 updates per env step (2 per chunk decision)
     "dsrl": [],
-    # an update takes 0.7-1.1 s at batch 256 (the bootstrap decodes the actor's w' at every next state;
-    # 0.16-0.29 s at 128): batch 128 and the 8,000 updates of the filtered-BC and continued-BC arms
+    # an update decodes the actor's noise twice (the bootstrap's w' and the distillation's w): 0.7-1.1 s
+    # at batch 256 with one decode, 0.16-0.29 s at 128: batch 128 and the 8,000 updates of the
+    # filtered-BC and continued-BC arms
     "dsrl_na": ["finetune.batch_size=128", "online.updates_per_step=0.084"],
     "filtered_bc": [],  # an L1 Flow step at batch 64 (~0.1 s), 0.084 per env step
 }

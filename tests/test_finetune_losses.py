@@ -334,8 +334,9 @@ def test_dsrl_na_bootstraps_the_action_critic_on_the_decoded_steering_noise():
 
 
 def test_dsrl_na_distils_the_action_critic_of_each_cached_noises_chunk():
-    """Q^W is fitted on each observation's cached noises against min Q^A of their decoded chunks; the
-    noises are drawn and decoded once per observation, and a fresh cache draws the same ones."""
+    """Q^W is fitted on each observation's cached noises, and on the actor's, against min Q^A of their
+    decoded chunks; the cached noises are drawn and decoded once per observation, and a fresh cache
+    draws the same ones."""
     torch.manual_seed(0)
     flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, pred_horizon=8, action_steps=4, down_dims=(8, 16))
     critic = linear_critic(flow, (H_EXEC, 3), biases=[0.0, 2.0], action_weight=1.0)
@@ -349,6 +350,12 @@ def test_dsrl_na_distils_the_action_critic_of_each_cached_noises_chunk():
     expected = chunks.sum((1, 2)).mean()  # min over the members: the bias-0 one
     out = loss(batch)
     assert out["distill_target_mean"].item() == pytest.approx(expected.item(), rel=1e-5)
+    # the other half of the fit: Q^A of the chunk decoded from the actor's own (clipped) noise
+    real_sample = loss._sample
+    loss._sample = lambda obs: (torch.full((obs.shape[0], 8, 3), 0.7), torch.zeros(obs.shape[0]))
+    on_actor = loss.executed(loss.actor.decode(obs, torch.full((16, 8, 3), 0.7))).sum((1, 2)).mean()
+    assert loss(batch)["distill_target_actor_mean"].item() == pytest.approx(on_actor.item(), rel=1e-5)
+    loss._sample = real_sample
     distinct = len(set(keys))
     assert len(loss.proposal_cache) == distinct and loss.proposal_cache.misses == distinct
     loss(batch)
