@@ -171,12 +171,16 @@ class NoiseActor(ExecutesChunks, TensorDictModuleBase):
 
     @torch.no_grad()
     def decode(self, obs: TensorDictBase, noise: Tensor) -> Tensor:
-        """The full chunk [N, H, A] (environment units) decoded from the flow's input noise [N, H, A]."""
+        """The full chunks [N, ..., H, A] (environment units) decoded from the flow's input noise
+        [N, ..., H, A] at read observations [N, To]: several noises per observation encode it once."""
         policy = self.policy
         cond = policy.encode(obs)
-        noise = noise.to(device=cond.device, dtype=cond.dtype)
-        x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), noise)
-        return policy.action_normalizer.unnormalize(x1)
+        per_obs = math.prod(noise.shape[1:-2])
+        if per_obs != 1:
+            cond = cond.repeat_interleave(per_obs, 0)
+        start = noise.reshape(-1, *noise.shape[-2:]).to(device=cond.device, dtype=cond.dtype)
+        x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), start)
+        return policy.action_normalizer.unnormalize(x1).reshape(noise.shape)
 
     @torch.no_grad()
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:

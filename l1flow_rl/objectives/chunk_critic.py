@@ -157,9 +157,9 @@ class ChunkCriticLoss(LossModule):
         return self.reader.as_obs_dict(self._get(td, key, "an observation history"), key=str(key))
 
     def executed(self, chunk: Tensor) -> Tensor:
-        """The executed steps [N, h, A] of stored or predicted chunks [N, H, A]."""
+        """The executed steps [..., h, A] of stored or predicted chunks [..., H, A]."""
         start = self.reader.obs_horizon - 1
-        return chunk[:, start : start + self.rl_horizon]
+        return chunk[..., start : start + self.rl_horizon, :]
 
     def critic_input(self, td: TensorDictBase) -> Tensor:
         """What the critics value for the batch's windows: the executed actions (environment units)."""

@@ -128,17 +128,10 @@ class DSRLNALoss(ChunkCriticLoss):
     def noise_critic(self) -> ChunkCritic:
         return self.noise_qvalue_network.module  # type: ignore[return-value]
 
-    @torch.no_grad()
     def _decode_executed(self, obs: TensorDictBase, noise: Tensor) -> Tensor:
-        """The executed steps [N, S, h, A] of the flow's chunks decoded from noise [N, S, H, A] at read
-        observations [N, To] (clipped to the bound, as the actor acts; one encoding per observation)."""
-        policy = self.reader
-        n, samples = noise.shape[:2]
-        cond = policy.encode(obs).repeat_interleave(samples, 0)
-        start = noise.clamp(-self.bound, self.bound).reshape(n * samples, *noise.shape[2:]).to(cond)
-        x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), start)
-        executed = self.executed(policy.action_normalizer.unnormalize(x1))
-        return executed.reshape(n, samples, *executed.shape[1:])
+        """The executed steps [N, ..., h, A] of the chunks decoded from noise [N, ..., H, A] at read
+        observations [N, To], the noise clipped to the bound as the actor acts."""
+        return self.executed(self.actor.decode(obs, noise.clamp(-self.bound, self.bound)))
 
     def q_noise(self, observation: TensorDictBase, noise: Tensor, *, detach: bool = False) -> Tensor:
         """Every noise critic's value [N, E] of noise [N, H, A]; ``detach``: for the actor's objective."""
@@ -152,7 +145,7 @@ class DSRLNALoss(ChunkCriticLoss):
 
     def next_value(self, td: TensorDictBase, next_obs: TensorDictBase) -> Tensor:
         w, log_prob = self._sample(next_obs)
-        chunk = self._decode_executed(next_obs, w.unsqueeze(1)).squeeze(1)
+        chunk = self._decode_executed(next_obs, w)
         value = self.aggregate_target(self.q(next_obs, chunk, target=True))
         return value - self.log_alpha.exp().detach() * log_prob
 
@@ -165,7 +158,7 @@ class DSRLNALoss(ChunkCriticLoss):
         prior, out = self._distill_prior(obs)
         with torch.no_grad():
             w, _ = self._sample(obs)
-            target = self.aggregate(self.q(obs, self._decode_executed(obs, w.unsqueeze(1)).squeeze(1)))
+            target = self.aggregate(self.q(obs, self._decode_executed(obs, w)))
         on_actor = (self.q_noise(obs, w) - target.unsqueeze(-1)).square().mean()
         return 0.5 * (prior + on_actor), {**out, "distill_target_actor_mean": target.mean()}
 
