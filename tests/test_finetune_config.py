@@ -50,6 +50,8 @@ def test_bad_fine_tuning_settings_fail_at_config_time_naming_the_field():
         compose_config(["finetune=dsrl", "online.offline_fraction=0.5"], command="finetune")
     with pytest.raises(ConfigValidationError, match=r"finetune\.q_agg='max'"):
         compose_config(["finetune=fql", "finetune.q_agg=max"], command="finetune")
+    with pytest.raises(ConfigValidationError, match=r"finetune\.ema_power=-0\.5: expected 0 \(no EMA\)"):
+        compose_config(["finetune=filtered_bc", "finetune.ema_power=-0.5"], command="finetune")
     with pytest.raises(Exception, match="backup"):  # a retired knob is an unknown key
         compose_config(["finetune=qc", "finetune.backup=max"], command="finetune")
 

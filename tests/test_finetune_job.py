@@ -144,6 +144,9 @@ def _killed_and_resumed(run_dir, args, monkeypatch) -> dict:
 def _assert_same_run(resumed: dict, straight: dict) -> None:
     assert resumed["progress"] == straight["progress"]
     assert _differing(resumed["model"], straight["model"]) == []
+    if straight.get("ema") is not None:  # finetune.ema_power: the averaged actor and its step counter
+        assert _differing(resumed["ema"], straight["ema"]) == []
+        assert torch.equal(resumed["ema_n_averaged"], straight["ema_n_averaged"])
     assert _differing(resumed["loss"], straight["loss"]) == []
     assert _differing(resumed["buffers"], straight["buffers"]) == []
     # logged metrics (NaN where a round had no update: the warm-up) equal, NaN included
@@ -286,6 +289,29 @@ def test_filtered_bc_trains_the_flow_on_demonstrations_and_successful_episodes_o
         float(line.split(",")[1]) for line in (logged / "episodes_succeeded.csv").read_text().split()
     ]
     assert len(windows) == 2 and (windows[-1] > 0) == (sum(succeeded) > 0), (windows, succeeded, rounds)
+
+
+def test_with_an_ema_the_averaged_flow_is_saved_for_eval_and_resumes_exactly(
+    tmp_path, data_dir, bc_checkpoint, monkeypatch
+):
+    """finetune.ema_power: the raw flow trains, its EMA (one step per update) is what load_actor, hence
+    eval, validation and the test, get; a run killed mid-way resumes to the same EMA."""
+    args = ["finetune=filtered_bc", "finetune.batch_size=16", "finetune.ema_power=0.75", "eval.episodes=0"]
+    straight_dir = tmp_path / "straight"
+    assert main(_args(straight_dir, data_dir, bc_checkpoint, *args)) == 0
+    straight = load_checkpoint(straight_dir / "checkpoints" / "latest.pt")
+    updates = straight["progress"]["offline_updates"] + straight["progress"]["online_updates"]
+    assert updates == 8 and int(straight["ema_n_averaged"]) == updates
+    assert _differing(straight["ema"], straight["model"]) != []  # averaged, not the last iterate
+    actor, _ = load_actor(straight_dir / "checkpoints" / "latest.pt")
+    assert _differing(actor.state_dict(), straight["ema"]) == []
+    run_dir = tmp_path / "resumed"
+    resumed = _killed_and_resumed(run_dir, _args(run_dir, data_dir, bc_checkpoint, *args), monkeypatch)
+    _assert_same_run(resumed, straight)
+    # a resume cannot switch the EMA off or on: the weights that act would change meaning
+    with pytest.raises(CheckpointMismatchError, match=r"finetune\.ema_power: checkpoint has 0.75"):
+        without = _args(run_dir, data_dir, bc_checkpoint, *args[:2], "eval.episodes=0")
+        main(["--debug", *without, "resume=true"])
 
 
 def test_the_continued_bc_control_trains_on_demonstrations_without_an_env_step(

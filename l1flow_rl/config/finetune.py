@@ -80,6 +80,8 @@ class FinetuneConfig:
     gamma: float = 0.99
     tau: float = 0.005  # Polyak rate of the target critics (TorchRL SoftUpdate)
     lr: float = 3.0e-4  # Adam, every network
+    # the acting policy's EMA (Diffusion Policy's schedule, as BC trains); 0: the raw weights act
+    ema_power: float = 0.0
     batch_size: int = 256
     num_critics: int = 2
     # critics drawn at random for each batch's bootstrap (min/mean over them; the actor climbs the mean
@@ -129,6 +131,13 @@ def round_frames(cfg) -> int:
     return int(on.frames_per_round) or int(on.num_envs) * int(cfg.task.max_episode_steps)
 
 
+def _check_ema(cfg, command: str) -> list[str]:
+    ft = cfg.get("finetune")
+    if command != "finetune" or ft is None or ft.get("ema_power", 0.0) >= 0.0:
+        return []
+    return [f"finetune.ema_power={ft.ema_power}: expected 0 (no EMA) or a positive power (DP's: 0.75)"]
+
+
 def _check_online(cfg, command: str) -> list[str]:
     """Online settings that would otherwise fail only after the offline phase."""
     on = cfg.get("online")
@@ -158,4 +167,4 @@ CHOICES = {
     "finetune.q_agg": lambda: ("mean", "min"),
     "finetune.reward": lambda: tuple(REWARD_KEYS),
 }
-CHECKS = (_check_online,)
+CHECKS = (_check_online, _check_ema)
