@@ -1,5 +1,6 @@
 """`l1flow-rl train` end to end on the harder tasks, demonstrations made by their experts on the
-real simulators: robosuite Square (scripted) and ManiSkill PegInsertionSide (motion planning)."""
+real simulators: robosuite Square and ToolHang (scripted) and ManiSkill PegInsertionSide (motion
+planning)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,14 @@ CASES = [
         400,
         marks=pytest.mark.robosuite,
         id="square",
+    ),
+    # the scripted ToolHang expert: ~4-7 s per demonstration; seeds 0-2 all succeed
+    pytest.param(
+        "robosuite_toolhang",
+        ["+task.expert.workers=1"],
+        700,
+        marks=pytest.mark.robosuite,
+        id="toolhang",
     ),
     # PegInsertionSide's planner succeeds on ~45 % of seeds at ~4 s each; seeds 9-12 all succeed
     # (and replay into pd_ee_delta_pose), so three demonstrations cost one short batch

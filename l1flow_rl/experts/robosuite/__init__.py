@@ -1,4 +1,4 @@
-"""Scripted robosuite experts (Lift, Stack, PickPlaceCan, NutAssemblySquare) writing robomimic files; see
+"""Scripted robosuite experts (Lift, Stack, PickPlaceCan, NutAssemblySquare, ToolHang) writing robomimic files; see
 :mod:`l1flow_rl.experts.robosuite.demos`. Imports no simulator until demonstrations are made."""
 
 from l1flow_rl.experts.registry import ExpertSpec, register_expert
@@ -11,7 +11,7 @@ EXPERT = register_expert(
         simulator="robosuite",
         make="l1flow_rl.experts.robosuite.demos:ensure_robosuite_demos",
         description="scripted pick-and-place on privileged state (randomised speed, grasp offset, waypoints)",
-        env_ids=("Lift", "Stack", "PickPlaceCan", "NutAssemblySquare"),
+        env_ids=("Lift", "Stack", "PickPlaceCan", "NutAssemblySquare", "ToolHang"),
         options=("workers", "max_consecutive_failures", "quality", "progress"),
     )
 )
