@@ -1,5 +1,5 @@
-"""Scripted robosuite experts (Lift, Stack, PickPlaceCan, NutAssemblySquare, ToolHang) writing robomimic files; see
-:mod:`l1flow_rl.experts.robosuite.demos`. Imports no simulator until demonstrations are made."""
+"""Scripted robosuite experts (Lift, Stack, PickPlaceCan, NutAssemblySquare, ToolHang) writing robomimic
+files; see :mod:`l1flow_rl.experts.robosuite.demos`. Imports no simulator until demonstrations are made."""
 
 from l1flow_rl.experts.registry import ExpertSpec, register_expert
 
