@@ -312,6 +312,7 @@ def main(argv: list[str] | None = None) -> int:
             controls["continued_bc"] = {
                 **seeded_control({s: read_control(d) for s, d in finished.items()}),
                 "updates": args.continued_bc_updates,
+                "overrides": list(args.override),  # --override reaches the control too (e.g. an EMA)
             }
             last = {s: d.with_name(f"{d.name}_last") for s, d in finished.items()}
             for s, out_dir in last.items():
@@ -325,6 +326,7 @@ def main(argv: list[str] | None = None) -> int:
                 controls["continued_bc_last"] = {
                     **seeded_control({s: read_control(d) for s, d in done.items()}),
                     "updates": args.continued_bc_updates,
+                    "overrides": list(args.override),
                 }
     readable = lambda d: (d / "eval.json").is_file() or (d / "checkpoints" / "latest.pt").is_file()  # noqa: E731
     algorithms = {}

@@ -91,6 +91,8 @@ def render_finetune_online(data: dict) -> str:
         test = control["test"]
         if "seeds" in control:  # a control run once per seed (bench_finetune_online's continued BC)
             updates = f", {control['updates']:,} updates" if control.get("updates") else ""
+            if control.get("overrides"):
+                updates += ", " + " ".join(f"`{o}`" for o in control["overrides"])
             lines.append(
                 f"| {name}{updates} | {len(control['seeds'])} | {_rate(test['success_once'])} "
                 f"({_rate(test['min'])}-{_rate(test['max'])}; {test['episodes']} episodes) | "

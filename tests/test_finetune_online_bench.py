@@ -72,6 +72,9 @@ def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
     )
     assert "| dsrl | 1 | 0.32 (0.32-0.32) | 0k: 0.18, 20k: 0.30 | 200 | 10 |" in table
     assert "dsrl: `x=1`" in table
+    # an --override that reached the control too (an EMA) is named in its row
+    data["controls"]["continued_bc"]["overrides"] = ["finetune.ema_power=0.75"]
+    assert "| continued_bc, 8,000 updates, `finetune.ema_power=0.75` | 2 |" in render_finetune_online(data)
 
 
 def test_a_finished_run_reads_its_closing_validation_at_its_last_env_step(tmp_path):
