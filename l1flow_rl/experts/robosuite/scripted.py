@@ -465,7 +465,7 @@ class ToolHangExpert(ScriptedExpert):
         tilt, psi = np.radians(75.0), np.radians(15.0)
         # the ring's centre from the bar's end, over the upright (7.5 mm long). The failures leave the
         # ring caught on the upright (~3 mm along the bar, ~4.5 mm above it); 5.5 mm did better on
-        # seeds 0-46 (41/47 against 35/47) but is not measured further, so 4.5 mm (0.71-0.75 over 100
+        # seeds 0-46 (41/47 against 35/47) but is not measured further, so 4.5 mm (0.71 over 100
         # seeds) stays
         along = 0.0045
         held: dict[str, Rotation] = {}
