@@ -17,7 +17,7 @@ CASES = [
         marks=pytest.mark.robosuite,
         id="square",
     ),
-    # the scripted ToolHang expert: ~4-7 s per demonstration; seeds 0-2 all succeed
+    # the scripted ToolHang expert: ~4-8 s per demonstration (seed 2 fails: 4 episodes for 3)
     pytest.param(
         "robosuite_toolhang",
         ["+task.expert.workers=1"],
