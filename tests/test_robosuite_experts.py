@@ -21,7 +21,8 @@ from l1flow_rl.experts.robosuite.scripted import canonical_rotvec  # noqa: E402
 
 
 @pytest.mark.parametrize(
-    "task_name", ["robosuite_lift", "robosuite_stack", "robosuite_can", "robosuite_square"]
+    "task_name",
+    ["robosuite_lift", "robosuite_stack", "robosuite_can", "robosuite_square", "robosuite_toolhang"],
 )
 def test_expert_succeeds_on_most_of_five_seeds(task_name):
     task = load_task_config(task_name)
@@ -34,6 +35,8 @@ def test_expert_succeeds_on_most_of_five_seeds(task_name):
         sim.restore_state(env, demo["states"][-1])
         assert env._check_success()
         assert len(demo["actions"]) <= task.max_episode_steps
+        # the axis-angle actions must not jump by ~2 pi (ToolHang's hand turns through many orientations)
+        assert np.abs(np.diff(demo["actions"][:, 3:6], axis=0)).max() < 0.2
     # randomised: no two demonstrations share a length and an action sequence
     first_actions = {tuple(np.round(d["actions"][5], 4)) for d in done}
     assert len(first_actions) == len(done)
