@@ -271,3 +271,26 @@ def test_terminated_episodes_only_gives_windows_of_successful_episodes_alone():
     online.extend(make_episodes(lengths=(7,), terminated=(True,)))
     assert online.sampler.window_count(online.storage) == 7
     assert set(online.sample()["step"].tolist()) <= set(range(7))
+
+
+def test_filtered_bc_buffers_drop_the_demonstrations_that_fail_and_count_them():
+    from l1flow_rl.cli import compose_config
+    from l1flow_rl.workspace.rl_data import RLBuffers
+
+    cfg = compose_config(
+        ["finetune=filtered_bc", "checkpoint=bc.pt", "finetune.batch_size=300"], command="finetune"
+    )
+    mixed = make_episodes(lengths=(20, 25, 30), terminated=(True, False, True))  # episode 1 failed
+    buffers = RLBuffers(cfg, mixed, 8, seed=0, successful_episodes_only=True)
+    assert buffers.demo_episodes == {"kept": 2, "given": 3}
+    assert set(buffers.sample_offline()["episode"].tolist()) == {0, 2}
+    # the critic algorithms keep every demonstration (a failure is a value target for them)
+    every = RLBuffers(cfg, mixed, 8, seed=0)
+    assert every.demo_episodes == {"kept": 3, "given": 3}
+    assert set(every.sample_offline()["episode"].tolist()) == {0, 1, 2}
+    failed = make_episodes(lengths=(20, 25), terminated=(False, False))
+    recorded = compose_config(
+        ["finetune=filtered_bc", "checkpoint=bc.pt", "finetune.reward=recorded"], command="finetune"
+    )
+    with pytest.raises(EpisodeDataError, match=r"none of the 2 demonstration episodes .* ends in success"):
+        RLBuffers(recorded, failed, 8, seed=0, successful_episodes_only=True)

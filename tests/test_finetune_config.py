@@ -63,7 +63,7 @@ def test_filtered_bc_preset_builds_a_critic_free_loss_on_successful_online_episo
     cfg = compose_config(["finetune=filtered_bc", "checkpoint=bc.pt"], command="finetune")
     assert cfg.finetune.batch_size == 64 and cfg.online.offline_fraction == 0.5
     algorithm = FINETUNE_ALGORITHMS["filtered_bc"]
-    assert algorithm.online_terminated_only and algorithm.uses_offline_data
+    assert algorithm.successful_episodes_only and algorithm.uses_offline_data
     flow = L1FlowActor.for_state(obs_dim=3, action_dim=2, down_dims=(8, 16))
     loss = algorithm.build(flow, cfg.finetune)
     assert isinstance(loss, FilteredBCLoss) and loss.actor is flow and loss.rl_horizon == 8

@@ -18,8 +18,9 @@ __all__ = ["FilteredBCLoss"]
 
 
 class FilteredBCLoss(LossModule):
-    """The flow's L1 Flow loss on the windows it is given; the online buffer keeps only successful
-    episodes' windows (the registry's ``online_terminated_only``).
+    """The flow's L1 Flow loss on the windows it is given; both buffers keep only the windows of
+    episodes that ended in success (the registry's ``successful_episodes_only``): a mixed-quality
+    demonstration set's failed episodes are filtered out like the failed online ones.
 
     Args:
         actor_network: the :class:`~l1flow_rl.L1FlowActor` that acts and is trained (shared, not copied).

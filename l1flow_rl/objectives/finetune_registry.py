@@ -58,10 +58,11 @@ class FinetuneAlgorithm:
     ``settings``: the dataclass of the algorithm's own block ``finetune.<name>``; ``online_keys``:
     per-step entries the online buffer keeps beside the core ones; ``online_anchor_key``: where set,
     online windows start only at rows where that entry is 1 (DSRL: chunk starts, the only windows
-    its critic can value); ``online_terminated_only``: online windows only in episodes that ended in
-    success (filtered BC); ``uses_offline_data``: False where the batches need entries demonstrations
-    lack (DSRL's noise). The loss is a :class:`~l1flow_rl.ChunkCriticLoss`, or a plain TorchRL
-    ``LossModule`` with ``actor`` and ``rl_horizon`` where there is no critic (filtered BC)."""
+    its critic can value); ``successful_episodes_only``: windows only in episodes that ended in
+    success, demonstrations and online episodes alike (filtered BC); ``uses_offline_data``: False
+    where the batches need entries demonstrations lack (DSRL's noise). The loss is a
+    :class:`~l1flow_rl.ChunkCriticLoss`, or a plain TorchRL ``LossModule`` with ``actor`` and
+    ``rl_horizon`` where there is no critic (filtered BC)."""
 
     name: str
     loss_cls: type[LossModule]
@@ -70,7 +71,7 @@ class FinetuneAlgorithm:
     start_actor: Callable[[LossModule], nn.Module]
     online_keys: tuple[str, ...] = ()
     online_anchor_key: str | None = None
-    online_terminated_only: bool = False
+    successful_episodes_only: bool = False
     uses_offline_data: bool = True
 
     def check(self, cfg: DictConfig) -> list[str]:
@@ -220,6 +221,6 @@ register_finetune_algorithm(
         FilteredBCSettings,
         _build_filtered_bc,
         _flow,
-        online_terminated_only=True,
+        successful_episodes_only=True,
     )
 )

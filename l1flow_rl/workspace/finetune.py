@@ -33,6 +33,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.objectives import SoftUpdate
+from tqdm import tqdm
 
 from l1flow_rl.ema import DPEma, make_ema
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
@@ -167,8 +168,12 @@ def run_finetune(cfg: DictConfig) -> int:
             seed=int(cfg.seed),
             online_keys=algorithm.online_keys,
             online_anchor_key=algorithm.online_anchor_key,
-            online_terminated_only=algorithm.online_terminated_only,
+            successful_episodes_only=algorithm.successful_episodes_only,
         )
+        kept, given = buffers.demo_episodes["kept"], buffers.demo_episodes["given"]
+        if kept < given:  # said, not silent: a mixed-quality set's failed episodes train nothing here
+            tqdm.write(f"{algorithm.name}: trains on the {kept} of {given} demonstrations that succeed")
+        run.records["demo_episodes"] = [dict(buffers.demo_episodes)]
         progress = {"offline_updates": 0, "online_updates": 0, "env_steps": 0, "rounds": 0, "started": False}
         saved = {"buffer": None, "describe_start": False}
         run.records.setdefault("rounds", [])

@@ -14,12 +14,13 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from torchrl.data import OfflineToOnlineReplayBuffer, TensorDictReplayBuffer
 
 from l1flow_rl.config.finetune import REWARD_KEYS, round_frames
-from l1flow_rl.data import make_chunk_buffer
+from l1flow_rl.data import EpisodeDataError, make_chunk_buffer
 from l1flow_rl.data.online import CORE_KEYS
 from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
 from l1flow_rl.workspace.dataset import chunk_padding
@@ -47,6 +48,17 @@ class ChunkOfflineToOnlineBuffer(OfflineToOnlineReplayBuffer):
         self._online_buffer = online
 
 
+def n_episodes(episodes: TensorDictBase, ended_terminated: bool = False) -> int:
+    """How many episodes ``episodes`` holds (rows grouped by ``"episode"``); with
+    ``ended_terminated``, only those whose last step is terminated (success)."""
+    episode = episodes.get("episode").reshape(-1)
+    last = torch.ones_like(episode, dtype=torch.bool)
+    last[:-1] = episode[1:] != episode[:-1]
+    if ended_terminated:
+        last &= episodes.get(("next", "terminated")).reshape(episode.shape[0], -1)[:, 0].bool()
+    return int(last.sum())
+
+
 def _check_sparse_source(episodes: TensorDictBase, cfg: DictConfig) -> None:
     """``finetune.reward=sparse`` reads success from the terminal steps: demonstrations recorded
     with terminations off (no episode terminates) would give the critic no reward at all."""
@@ -72,8 +84,9 @@ class RLBuffers:
             algorithm's, e.g. DSRL's noise).
         online_anchor_key: online windows start only where this stored entry is 1 (DSRL's chunk
             starts); None: at every step.
-        online_terminated_only: online windows only in episodes that ended in a terminal state
-            (success here; filtered behaviour cloning). Until one has, batches are the demonstrations'
+        successful_episodes_only: windows only in episodes that ended in a terminal state (success
+            here; filtered behaviour cloning), in the demonstrations (a mixed-quality set's failures
+            drop out) and online. Until an online episode qualifies, batches are the demonstrations'
             alone, counted in :attr:`demo_only_batches`.
     """
 
@@ -85,7 +98,7 @@ class RLBuffers:
         seed: int,
         online_keys: tuple[str, ...] = (),
         online_anchor_key: str | None = None,
-        online_terminated_only: bool = False,
+        successful_episodes_only: bool = False,
     ) -> None:
         ocfg = cfg.online
         if not 0.0 <= ocfg.offline_fraction < 1.0:
@@ -110,6 +123,7 @@ class RLBuffers:
             gamma=cfg.finetune.gamma,
             reward_key=REWARD_KEYS[reward],
             keys=CORE_KEYS,  # demonstrations and online episodes share one set of entries
+            terminated_episodes_only=successful_episodes_only,
         )
         online = (*CORE_KEYS, *online_keys)
         if online_anchor_key is not None and online_anchor_key not in online:
@@ -124,7 +138,6 @@ class RLBuffers:
                     **common,
                     "keys": online,
                     "anchor_key": online_anchor_key,
-                    "terminated_episodes_only": online_terminated_only,
                 },
             )
 
@@ -156,6 +169,16 @@ class RLBuffers:
             self.online = online_buffer()
             self.mixed = self.online
         self.batch_size = int(cfg.finetune.batch_size)
+        #: demonstration episodes whose windows the batches draw from, of all given
+        self.demo_episodes = {"kept": n_episodes(episodes), "given": n_episodes(episodes)}
+        if successful_episodes_only:
+            self.demo_episodes["kept"] = n_episodes(episodes, ended_terminated=True)
+            if self.demo_episodes["kept"] == 0:  # before the start's validation, not at the first batch
+                raise EpisodeDataError(
+                    f"finetune.algorithm={cfg.finetune.algorithm}: none of the {self.demo_episodes['given']} "
+                    f"demonstration episodes of task {cfg.task.name!r} ends in success (a terminated last "
+                    "step), and this algorithm trains only on successful episodes"
+                )
         self.online_steps_stored = 0
         self.demo_only_batches = 0
 
