@@ -171,8 +171,10 @@ def test_training_picks_the_checkpoint_on_validation_seeds_and_reports_test_seed
     selection = result["selection"]
     assert selection["split"] == "val" and selection["seeds"] == {"first": 10_000, "episodes": 1}
     assert [e["step"] for e in selection["evaluations"]] == [10, 20]  # periodic, then the final model
-    best = max(selection["evaluations"], key=lambda e: e["success_once"])
-    assert selection["step"] == best["step"]
+    top = max(e["success_once"] for e in selection["evaluations"])
+    # training keeps the latest of equally validated models
+    assert selection["step"] == max(e["step"] for e in selection["evaluations"] if e["success_once"] == top)
+    assert selection["rule"].endswith("the latest of equals")
     assert torch.load(run_dir / "checkpoints" / "best.pt", weights_only=True)["step"] == selection["step"]
     assert result["sampler"]["name"] == "two_step"
     scalars = next((run_dir / "logs").glob("*/scalars"))
@@ -181,7 +183,7 @@ def test_training_picks_the_checkpoint_on_validation_seeds_and_reports_test_seed
     assert (scalars / "test" / "return_ci95_high.csv").is_file()
 
 
-def test_selection_takes_the_first_best_validation_and_the_final_model_without_one():
+def test_selection_takes_the_earliest_or_latest_best_validation_and_the_final_model_without_one():
     from l1flow_rl.cli import compose_config
     from l1flow_rl.workspace.evaluator import PeriodicEvaluator
 
@@ -192,8 +194,12 @@ def test_selection_takes_the_first_best_validation_and_the_final_model_without_o
         {"step": 30, "split": "val", "success_once": 0.8},
         {"step": 30, "split": "test", "success_once": 1.0},  # test figures never choose
     ]
-    chosen = evaluator.selection(evals, final_step=30)
+    chosen = evaluator.selection(evals, final_step=30)  # fine-tuning's rule: its start wins ties
     assert (chosen["split"], chosen["step"], chosen["value"]) == ("val", 20, 0.8)
+    latest = evaluator.selection(evals, final_step=30, ties="latest")  # training's rule
+    assert (latest["step"], latest["value"]) == (30, 0.8) and latest["rule"].endswith("latest of equals")
+    with pytest.raises(ValueError, match="ties='last'"):
+        evaluator.selection(evals, final_step=30, ties="last")
     assert chosen["seeds"] == {"first": 10_000, "episodes": 5}
     assert [e["step"] for e in chosen["evaluations"]] == [10, 20, 30]
     final = evaluator.selection([], final_step=30)

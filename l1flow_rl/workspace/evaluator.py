@@ -15,7 +15,11 @@ from l1flow_rl.evaluation import evaluate
 from l1flow_rl.evaluation.plan import resolve_plan, task_from
 from l1flow_rl.workspace.logging import log_evaluation
 
-__all__ = ["PeriodicEvaluator"]
+__all__ = ["TIE_RULES", "PeriodicEvaluator"]
+
+#: which of equally validated models is chosen: training keeps the latest (with a cosine LR and an
+#: EMA a later checkpoint is the better prior), fine-tuning the earliest (its start wins ties)
+TIE_RULES = ("earliest", "latest")
 
 
 class PeriodicEvaluator:
@@ -76,9 +80,13 @@ class PeriodicEvaluator:
         row[self.headline] = result[self.headline]
         return row
 
-    def selection(self, evals: Sequence[dict[str, Any]], final_step: int) -> dict[str, Any]:
-        """Which model the test figures belong to: the best validation evaluation (first of equals),
-        or the final model when no validation ran."""
+    def selection(
+        self, evals: Sequence[dict[str, Any]], final_step: int, ties: str = "earliest"
+    ) -> dict[str, Any]:
+        """Which model the test figures belong to: the best validation evaluation (of equals, the
+        ``ties`` one: ``"earliest"`` or ``"latest"``), or the final model when no validation ran."""
+        if ties not in TIE_RULES:
+            raise ValueError(f"ties={ties!r}; expected one of {TIE_RULES}")
         val = [e for e in evals if e.get("split", "val") == "val"]
         if not val:
             return {
@@ -86,11 +94,12 @@ class PeriodicEvaluator:
                 "step": final_step,
                 "rule": "final model: no validation during training (train.eval_every=0)",
             }
-        best = max(val, key=lambda e: e[self.headline])  # max keeps the first of equal values
+        # max keeps the first of equal values: the reversed list gives the latest of them
+        best = max(val if ties == "earliest" else val[::-1], key=lambda e: e[self.headline])
         return {
             "split": "val",
             "step": best["step"],
-            "rule": f"highest validation {self.headline}",
+            "rule": f"highest validation {self.headline}, the {ties} of equals",
             "sampler": self.cfg.eval.get("val_sampler") or self.cfg.policy.sampler,
             "value": best[self.headline],
             "seeds": {"first": self.plan.val_seed, "episodes": self.plan.val_episodes},

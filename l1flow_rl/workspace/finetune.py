@@ -145,6 +145,7 @@ def run_finetune(cfg: DictConfig) -> int:
         checkpoint_every=0,  # checkpointed below: an online checkpoint also dumps the buffer
         eval_every=0,
         history_keys=("loss_qvalue", "q_data_mean", "target_mean", "td_error_abs", "env_steps"),
+        ties="earliest",  # the start is validated first: no reported policy falls below it
     ) as run:
         dataset = _dataset(cfg, bc_state)
         episodes = load_task_episodes(cfg, dataset)
