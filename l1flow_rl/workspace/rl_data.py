@@ -14,13 +14,13 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from torchrl.data import OfflineToOnlineReplayBuffer, TensorDictReplayBuffer
 
 from l1flow_rl.config.finetune import REWARD_KEYS, round_frames
 from l1flow_rl.data import EpisodeDataError, make_chunk_buffer
+from l1flow_rl.data.episodes import episode_bounds
 from l1flow_rl.data.online import CORE_KEYS
 from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
 from l1flow_rl.workspace.dataset import chunk_padding
@@ -51,12 +51,11 @@ class ChunkOfflineToOnlineBuffer(OfflineToOnlineReplayBuffer):
 def n_episodes(episodes: TensorDictBase, ended_terminated: bool = False) -> int:
     """How many episodes ``episodes`` holds (rows grouped by ``"episode"``); with
     ``ended_terminated``, only those whose last step is terminated (success)."""
-    episode = episodes.get("episode").reshape(-1)
-    last = torch.ones_like(episode, dtype=torch.bool)
-    last[:-1] = episode[1:] != episode[:-1]
+    last = episode_bounds(episodes.get("episode"))[1].unique() - 1  # each episode's last row
     if ended_terminated:
-        last &= episodes.get(("next", "terminated")).reshape(episode.shape[0], -1)[:, 0].bool()
-    return int(last.sum())
+        terminated = episodes.get(("next", "terminated")).reshape(episodes.shape[0], -1)[:, 0].bool()
+        return int(terminated[last].sum())
+    return int(last.numel())
 
 
 def _check_sparse_source(episodes: TensorDictBase, cfg: DictConfig) -> None:
