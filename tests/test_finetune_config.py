@@ -68,3 +68,29 @@ def test_filtered_bc_preset_builds_a_critic_free_loss_on_successful_online_episo
     loss = algorithm.build(flow, cfg.finetune)
     assert isinstance(loss, FilteredBCLoss) and loss.actor is flow and loss.rl_horizon == 8
     assert not hasattr(loss, "target_qvalue_network_params")
+
+
+def test_a_fine_tune_adopts_its_starts_data_unless_the_command_line_sets_it():
+    from l1flow_rl.workspace.finetune import _adopt_start_data
+
+    bc = compose_config(
+        ["task=robosuite_can", "demos=mixed", "demos.num=30", "data.labels=[expert,noisy]"], command="train"
+    )
+    # nothing given: the BC run's demonstrations and label filter, not the defaults (100 expert)
+    ft = ["finetune=filtered_bc", "task=robosuite_can", "checkpoint=bc.pt"]
+    cfg = compose_config(ft, command="finetune")
+    assert cfg.demos.num == 100 and cfg.demos.quality == "expert" and cfg.data.labels is None
+    _adopt_start_data(cfg, bc, given=[])
+    assert (cfg.demos.num, cfg.demos.quality, list(cfg.data.labels)) == (30, "mixed", ["expert", "noisy"])
+    # a field the command line sets stands; the others still come from the start
+    cfg = compose_config([*ft, "demos.num=50"], command="finetune")
+    _adopt_start_data(cfg, bc, given=["demos.num"])
+    assert (cfg.demos.num, cfg.demos.quality, list(cfg.data.labels)) == (50, "mixed", ["expert", "noisy"])
+    # a whole group chosen on the command line stands as chosen
+    cfg = compose_config([*ft, "demos=default"], command="finetune")
+    _adopt_start_data(cfg, bc, given=["demos"])
+    assert (
+        cfg.demos.num == 100
+        and cfg.demos.quality == "expert"
+        and list(cfg.data.labels) == ["expert", "noisy"]
+    )

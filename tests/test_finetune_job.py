@@ -110,6 +110,15 @@ def test_qc_validates_the_start_then_fine_tunes_offline_and_online(finetuned):
     assert summary["algorithm"] == "qc" and summary["online_updates"] == 4
 
 
+def test_the_run_records_and_trains_on_the_data_its_start_was_trained_on(finetuned):
+    from omegaconf import OmegaConf
+
+    # BC made 3 demonstrations; the fine-tune command names none: its record says 3 (not the default 100)
+    assert OmegaConf.load(finetuned / "config.yaml").demos.num == 3
+    history = json.loads((finetuned / "history.json").read_text())
+    assert history["demo_episodes"][0]["given"] == 3
+
+
 def test_the_checkpoint_rebuilds_the_best_of_n_actor_for_eval(tmp_path, finetuned):
     actor, cfg = load_actor(finetuned / "checkpoints" / "latest.pt")
     assert (

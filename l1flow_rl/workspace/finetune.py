@@ -35,6 +35,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.objectives import SoftUpdate
 from tqdm import tqdm
 
+from l1flow_rl.config.overrides import overrides_under
 from l1flow_rl.ema import DPEma, make_ema
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_actor, load_checkpoint
@@ -106,10 +107,27 @@ def _check_task(bc_cfg: DictConfig, cfg: DictConfig, path: str) -> None:
         )
 
 
-def _dataset(cfg: DictConfig, bc_state: dict) -> Path:
-    """``data.path``, else the BC run's own demonstrations, else the task's expert demonstrations."""
-    if cfg.data.path:
-        return Path(cfg.data.path)
+def _adopt_start_data(cfg: DictConfig, bc_cfg: DictConfig, given: list[str]) -> None:
+    """Fine-tune on the data the start was trained on: each ``demos.*`` and ``data.*`` field takes the
+    BC run's value unless the command line sets it (``given``: the dotted keys it sets, e.g.
+    ``["demos.num"]``, or ``["demos"]`` for a group choice), so ``config.yaml`` records the data the
+    run trains on (it showed the defaults, 100 expert demonstrations, for a start trained on 30 mixed
+    ones)."""
+    with open_dict(cfg):
+        for group in ("demos", "data"):
+            if bc_cfg.get(group) is None or group in given:
+                continue
+            for key, value in bc_cfg[group].items():
+                if f"{group}.{key}" not in given:
+                    cfg[group][key] = value
+
+
+def _dataset(cfg: DictConfig, bc_state: dict, given: list[str]) -> Path:
+    """The file the command line names (``data.path``) or makes (``demos.*``), else the BC run's own
+    demonstrations, else the BC run's recipe (its ``demos``/``data``, adopted by
+    :func:`_adopt_start_data`) made again or found in ``data_dir``."""
+    if any(k == "data.path" or k == "demos" or k.startswith("demos.") for k in given):
+        return resolve_dataset(cfg)
     saved = bc_state.get("dataset")
     if saved and Path(saved).exists():
         return Path(saved)
@@ -128,6 +146,8 @@ def run_finetune(cfg: DictConfig) -> int:
         cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)
         if bc_cfg.get("encoder") is not None and "encoder" in cfg:
             cfg.encoder = OmegaConf.merge(cfg.encoder, bc_cfg.encoder)
+    given_data = [*overrides_under("demos"), *overrides_under("data")]
+    _adopt_start_data(cfg, bc_cfg, given_data)
     algorithm = FINETUNE_ALGORITHMS[cfg.finetune.algorithm]
     fcfg, off, on = cfg.finetune, cfg.offline, cfg.online
     plain = OmegaConf.to_container(cfg, resolve=True)
@@ -147,7 +167,7 @@ def run_finetune(cfg: DictConfig) -> int:
         history_keys=("loss_qvalue", "q_data_mean", "target_mean", "td_error_abs", "env_steps"),
         ties="earliest",  # the start is validated first: no reported policy falls below it
     ) as run:
-        dataset = _dataset(cfg, bc_state)
+        dataset = _dataset(cfg, bc_state, given_data)
         episodes = load_task_episodes(cfg, dataset)
         loss = algorithm.build(copy.deepcopy(bc_actor), fcfg).to(device)
         if getattr(loss, "proposal_cache", None) is not None:  # each seed draws its own cached proposals
