@@ -15,26 +15,33 @@ counts. Arms:
 - ``restored_adamw``: the BC run's own AdamW (betas 0.95/0.999, wd 1e-6) with its saved moments, at
   the same LR;
 - ``warmup``: fresh Adam with a linear LR warm-up over ``--warmup`` updates (the BC run's 200);
-- ``low_lr``: fresh Adam at ``--low-lr`` (a third of the BC run's peak).
+- ``low_lr``: fresh Adam at ``--low-lr`` (a third of the BC run's peak);
+- ``fresh_adam_ema``: ``fresh_adam``'s updates, read on their Diffusion-Policy EMA (power 0.75, what
+  ``finetune.ema_power=0.75`` acts with), its counter from 0 (its first updates copy the raw weights);
+- ``fresh_adam_bc_ema``: the same, the EMA continuing the BC run's (its counter from the checkpoint's
+  ``ema_n_averaged``, as if BC had gone on).
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import json
 import time
+from pathlib import Path
 
 import torch
 
 from benchmarks.common import machine_info, save_results
 from l1flow_rl.cli import compose_config
+from l1flow_rl.ema import make_ema
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
 from l1flow_rl.workspace.dataset import load_task_episodes
 from l1flow_rl.workspace.finetune import _adopt_start_data, _dataset
 from l1flow_rl.workspace.rl_data import RLBuffers
 
-ARMS = ("fresh_adam", "restored_adamw", "warmup", "low_lr")
+ARMS = ("fresh_adam", "restored_adamw", "warmup", "low_lr", "fresh_adam_ema", "fresh_adam_bc_ema")
 
 
 def make_optimizer(arm: str, params: list, bc_state: dict, args):
@@ -52,7 +59,7 @@ def make_optimizer(arm: str, params: list, bc_state: dict, args):
         for group in opt.param_groups:  # the saved LR is the cosine schedule's last (~0)
             group["lr"] = args.lr
         return opt, None
-    lr = args.low_lr if arm == "low_lr" else args.lr
+    lr = args.low_lr if arm == "low_lr" else args.lr  # fresh_adam(_ema), warmup
     opt = torch.optim.Adam(params, lr=lr)
     if arm == "warmup":
         return opt, torch.optim.lr_scheduler.LambdaLR(opt, lambda n: min(1.0, (n + 1) / args.warmup))
@@ -79,6 +86,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=200)
     parser.add_argument("--held-batches", type=int, default=16)
     parser.add_argument("--out", required=True)
+    parser.add_argument(
+        "--add", action="store_true", help="keep the arms --out holds (same checkpoint and settings)"
+    )
     args = parser.parse_args(argv)
 
     cfg = compose_config(
@@ -96,14 +106,33 @@ def main(argv: list[str] | None = None) -> int:
 
     held_from = buffers(seed=999)
     held = [held_from.sample_offline() for _ in range(args.held_batches)]
+    settings = {
+        "checkpoint": args.checkpoint,
+        "task": args.task,
+        "batch_size": int(cfg.finetune.batch_size),
+        "lr": args.lr,
+        "low_lr": args.low_lr,
+        "warmup": args.warmup,
+        "reads": [0, *args.reads],
+    }
     results = {}
+    if args.add and Path(args.out).is_file():
+        saved = json.loads(Path(args.out).read_text())
+        differ = [k for k, v in settings.items() if saved.get(k) != v]
+        if differ:
+            parser.error(f"--add: {args.out} was measured with other {differ}; measure into a new --out")
+        results = saved["arms"]
     for arm in args.arms:
         torch.manual_seed(0)
         loss = algorithm.build(copy.deepcopy(start), cfg.finetune)
         params = [p for p in loss.actor.parameters() if p.requires_grad]
         opt, sched = make_optimizer(arm, params, bc_state, args)
         train = buffers(seed=0)  # the same batches for every arm
-        curve = [{"updates": 0, "held_loss": held_loss(loss, held)}]
+        ema = make_ema(loss.actor, power=0.75) if arm.endswith("_ema") else None
+        if arm == "fresh_adam_bc_ema":
+            ema.n_averaged.copy_(bc_state["ema_n_averaged"])
+        read = loss if ema is None else algorithm.build(ema.module, cfg.finetune)
+        curve = [{"updates": 0, "held_loss": held_loss(read, held)}]
         t0 = time.perf_counter()
         for n in range(1, args.updates + 1):
             out = loss(train.sample_offline())
@@ -112,19 +141,16 @@ def main(argv: list[str] | None = None) -> int:
             opt.step()
             if sched is not None:
                 sched.step()
+            if ema is not None:
+                ema.update_parameters(loss.actor)
             if n in args.reads:
-                curve.append({"updates": n, "held_loss": held_loss(loss, held)})
+                curve.append({"updates": n, "held_loss": held_loss(read, held)})
                 print(arm, curve[-1], flush=True)
         results[arm] = {"curve": curve, "seconds": time.perf_counter() - t0}
     save_results(
         args.out,
         {
-            "checkpoint": args.checkpoint,
-            "task": args.task,
-            "batch_size": int(cfg.finetune.batch_size),
-            "lr": args.lr,
-            "low_lr": args.low_lr,
-            "warmup": args.warmup,
+            **settings,
             "demo_episodes": held_from.demo_episodes,
             "arms": results,
             "machine": machine_info(),

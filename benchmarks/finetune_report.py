@@ -237,3 +237,26 @@ def render_noise_draw(data: dict) -> str:
             "held-out seeds of the chosen checkpoint.",
         ]
     )
+
+
+def render_finetune_shock(data: dict) -> str:
+    arms = data["arms"]
+    reads = [c["updates"] for c in next(iter(arms.values()))["curve"]]
+    head = " | ".join(str(n) for n in reads)
+    rows = [
+        f"| {arm} | " + " | ".join(f"{c['held_loss']:.4f}" for c in v["curve"]) + f" | {v['seconds']:.0f} |"
+        for arm, v in arms.items()
+    ]
+    kept = data["demo_episodes"]
+    return "\n".join(
+        [
+            f"`{data['checkpoint']}` ({data['task']}): the L1 Flow loss on fixed held batches (fixed t and "
+            f"noise) of the {kept['kept']} successful of {kept['given']} demonstrations, after n updates "
+            f"from the checkpoint's EMA weights (batch {data['batch_size']}, the same batches for every "
+            f"arm; LR {data['lr']:g}, low LR {data['low_lr']:g}, warm-up {data['warmup']} updates).",
+            "",
+            f"| arm \\ updates | {head} | seconds |",
+            "|" + "---|" * (len(reads) + 2),
+            *rows,
+        ]
+    )

@@ -28,6 +28,7 @@ from benchmarks.finetune_report import (
     render_critic_bias,
     render_finetune_cost,
     render_finetune_online,
+    render_finetune_shock,
     render_noise_authority,
     render_noise_draw,
 )
@@ -576,6 +577,11 @@ GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
             render_finetune_online,
         ),
         (r"finetune_cost_.*\.json", "Fine-tuning: cost of an update and of acting", render_finetune_cost),
+        (
+            r"finetune_shock_.*\.json",
+            "Fine-tuning: what the first updates do to the BC flow's fit, per optimiser start",
+            render_finetune_shock,
+        ),
         (
             r"noise_authority.*\.json",
             "Steering authority of the input noise (what DSRL can move)",

@@ -62,6 +62,7 @@ def test_filtered_bc_preset_builds_a_critic_free_loss_on_successful_online_episo
 
     cfg = compose_config(["finetune=filtered_bc", "checkpoint=bc.pt"], command="finetune")
     assert cfg.finetune.batch_size == 64 and cfg.online.offline_fraction == 0.5
+    assert cfg.finetune.ema_power == 0.75  # the flow acts on its EMA, as in its BC run
     algorithm = FINETUNE_ALGORITHMS["filtered_bc"]
     assert algorithm.successful_episodes_only and algorithm.uses_offline_data
     flow = L1FlowActor.for_state(obs_dim=3, action_dim=2, down_dims=(8, 16))

@@ -310,7 +310,9 @@ def test_with_an_ema_the_averaged_flow_is_saved_for_eval_and_resumes_exactly(
     assert main(_args(straight_dir, data_dir, bc_checkpoint, *args)) == 0
     straight = load_checkpoint(straight_dir / "checkpoints" / "latest.pt")
     updates = straight["progress"]["offline_updates"] + straight["progress"]["online_updates"]
-    assert updates == 8 and int(straight["ema_n_averaged"]) == updates
+    # the flow's EMA goes on from the BC run's (its counter), not from a copy of the first iterate
+    bc_count = int(load_checkpoint(bc_checkpoint)["ema_n_averaged"])
+    assert updates == 8 and bc_count > 0 and int(straight["ema_n_averaged"]) == bc_count + updates
     assert _differing(straight["ema"], straight["model"]) != []  # averaged, not the last iterate
     actor, _ = load_actor(straight_dir / "checkpoints" / "latest.pt")
     assert _differing(actor.state_dict(), straight["ema"]) == []
@@ -319,7 +321,9 @@ def test_with_an_ema_the_averaged_flow_is_saved_for_eval_and_resumes_exactly(
     _assert_same_run(resumed, straight)
     # a resume cannot switch the EMA off or on: the weights that act would change meaning
     with pytest.raises(CheckpointMismatchError, match=r"finetune\.ema_power: checkpoint has 0.75"):
-        without = _args(run_dir, data_dir, bc_checkpoint, *args[:2], "eval.episodes=0")
+        without = _args(
+            run_dir, data_dir, bc_checkpoint, *args[:2], "finetune.ema_power=0", "eval.episodes=0"
+        )
         main(["--debug", *without, "resume=true"])
 
 
@@ -345,3 +349,27 @@ def test_the_continued_bc_control_trains_on_demonstrations_without_an_env_step(
     bc = load_checkpoint(bc_checkpoint)
     assert any(not torch.equal(v, bc["ema"][k]) for k, v in state["model"].items())
     assert json.loads((run_dir / "eval.json").read_text())["episodes"] == 2
+
+
+def test_the_shock_bench_reads_every_arm_from_the_same_start_and_adds_arms(tmp_path, bc_checkpoint):
+    """bench_finetune_shock: each optimiser start trains its own copy of the flow on the same batches;
+    the held loss is read on fixed batches, t and noise, so every arm starts at the same figure."""
+    from benchmarks import bench_finetune_shock as shock
+
+    out = tmp_path / "shock.json"
+    base = ["--checkpoint", str(bc_checkpoint), "--task", "maniskill_pushcube", "--out", str(out)]
+    small = ["--updates", "3", "--reads", "1", "3", "--held-batches", "2"]
+    assert shock.main([*base, *small, "--arms", "fresh_adam", "warmup"]) == 0
+    first = json.loads(out.read_text())
+    assert first["reads"] == [0, 1, 3] and list(first["arms"]) == ["fresh_adam", "warmup"]
+    starts = {arm: v["curve"][0]["held_loss"] for arm, v in first["arms"].items()}
+    assert starts["fresh_adam"] == starts["warmup"] > 0
+    # the warm-up's first update is at 1/200 of the LR: its flow moves less than fresh Adam's
+    moved = {arm: abs(v["curve"][1]["held_loss"] - starts[arm]) for arm, v in first["arms"].items()}
+    assert moved["warmup"] < moved["fresh_adam"]
+    assert shock.main([*base, *small, "--arms", "fresh_adam_bc_ema", "--add"]) == 0
+    added = json.loads(out.read_text())
+    assert list(added["arms"]) == ["fresh_adam", "warmup", "fresh_adam_bc_ema"]
+    assert added["arms"]["fresh_adam"] == first["arms"]["fresh_adam"]
+    with pytest.raises(SystemExit):  # other settings cannot be added to the same file
+        shock.main([*base, "--updates", "3", "--reads", "1", "2", "--arms", "low_lr", "--add"])

@@ -169,13 +169,21 @@ def run_finetune(cfg: DictConfig) -> int:
     ) as run:
         dataset = _dataset(cfg, bc_state, given_data)
         episodes = load_task_episodes(cfg, dataset)
-        loss = algorithm.build(copy.deepcopy(bc_actor), fcfg).to(device)
+        flow = copy.deepcopy(bc_actor)
+        loss = algorithm.build(flow, fcfg).to(device)
         if getattr(loss, "proposal_cache", None) is not None:  # each seed draws its own cached proposals
             loss.proposal_cache.seed = int(cfg.seed)
         start = algorithm.start_actor(loss)
         # With finetune.ema_power the averaged actor acts, is validated, tested and saved (the raw one
         # trains): measured on Square, constant-LR iterates of continued BC swung 0.16-0.68 in 8k updates
         ema = make_ema(loss.actor, power=float(fcfg.ema_power)) if fcfg.ema_power > 0 else None
+        if ema is not None and loss.actor is flow and bc_state.get("ema_n_averaged") is not None:
+            # The acting actor is the BC flow itself, whose weights are the BC run's EMA: the average
+            # goes on from the BC run's counter, as if BC had gone on. From 0 it copied the first,
+            # shocked iterates (held L1 Flow loss 0.022 -> 0.055 in 10 updates at 3e-4; continued:
+            # 0.022-0.023; benchmarks/results/finetune_shock_*.json). Algorithms whose acting module
+            # holds new networks (critics, a noise or one-step actor) start their EMA at 0.
+            ema.n_averaged.copy_(bc_state["ema_n_averaged"])
         policy = loss.actor if ema is None else ema.module
         acting = ActingSwitch(start, policy)
         optimizer = torch.optim.Adam([p for p in loss.parameters() if p.requires_grad], lr=float(fcfg.lr))
