@@ -186,7 +186,7 @@ def load_run(run: Path) -> tuple[DictConfig, Any, Any]:
     from l1flow_rl.config.finetune import FinetuneConfig, OnlineConfig
     from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
     from l1flow_rl.workspace.dataset import load_task_episodes
-    from l1flow_rl.workspace.finetune import _dataset
+    from l1flow_rl.workspace.finetune import start_dataset
 
     cfg = OmegaConf.load(run / "config.yaml")
     cfg.finetune = OmegaConf.merge(OmegaConf.structured(FinetuneConfig), cfg.finetune)
@@ -194,7 +194,7 @@ def load_run(run: Path) -> tuple[DictConfig, Any, Any]:
     bc_state = load_checkpoint(cfg.checkpoint)
     bc_actor, bc_cfg = load_actor(cfg.checkpoint)  # EMA weights, as the fine-tuning job loads them
     cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)  # the network is the checkpoint's
-    return cfg, bc_actor, load_task_episodes(cfg, _dataset(cfg, bc_state))
+    return cfg, bc_actor, load_task_episodes(cfg, start_dataset(cfg, bc_state, given=[]))
 
 
 def _buffers(cfg: DictConfig, episodes, loss, dump: Path, seed: int):

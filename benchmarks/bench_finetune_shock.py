@@ -38,7 +38,7 @@ from l1flow_rl.ema import make_ema
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
 from l1flow_rl.workspace.dataset import load_task_episodes
-from l1flow_rl.workspace.finetune import _adopt_start_data, _dataset
+from l1flow_rl.workspace.finetune import adopt_start_data, start_dataset
 from l1flow_rl.workspace.rl_data import RLBuffers
 
 ARMS = ("fresh_adam", "restored_adamw", "warmup", "low_lr", "fresh_adam_ema", "fresh_adam_bc_ema")
@@ -96,8 +96,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     bc_state = load_checkpoint(args.checkpoint)
     start, bc_cfg = load_actor(args.checkpoint, use_ema=True)
-    _adopt_start_data(cfg, bc_cfg, given=[])
-    episodes = load_task_episodes(cfg, _dataset(cfg, bc_state, given=[]))
+    adopt_start_data(cfg, bc_cfg, given=[])
+    episodes = load_task_episodes(cfg, start_dataset(cfg, bc_state, given=[]))
     algorithm = FINETUNE_ALGORITHMS["filtered_bc"]
     horizon = algorithm.build(copy.deepcopy(start), cfg.finetune).rl_horizon
 

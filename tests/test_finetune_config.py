@@ -72,7 +72,7 @@ def test_filtered_bc_preset_builds_a_critic_free_loss_on_successful_online_episo
 
 
 def test_a_fine_tune_adopts_its_starts_data_unless_the_command_line_sets_it():
-    from l1flow_rl.workspace.finetune import _adopt_start_data
+    from l1flow_rl.workspace.finetune import adopt_start_data
 
     bc = compose_config(
         ["task=robosuite_can", "demos=mixed", "demos.num=30", "data.labels=[expert,noisy]"], command="train"
@@ -81,15 +81,15 @@ def test_a_fine_tune_adopts_its_starts_data_unless_the_command_line_sets_it():
     ft = ["finetune=filtered_bc", "task=robosuite_can", "checkpoint=bc.pt"]
     cfg = compose_config(ft, command="finetune")
     assert cfg.demos.num == 100 and cfg.demos.quality == "expert" and cfg.data.labels is None
-    _adopt_start_data(cfg, bc, given=[])
+    adopt_start_data(cfg, bc, given=[])
     assert (cfg.demos.num, cfg.demos.quality, list(cfg.data.labels)) == (30, "mixed", ["expert", "noisy"])
     # a field the command line sets stands; the others still come from the start
     cfg = compose_config([*ft, "demos.num=50"], command="finetune")
-    _adopt_start_data(cfg, bc, given=["demos.num"])
+    adopt_start_data(cfg, bc, given=["demos.num"])
     assert (cfg.demos.num, cfg.demos.quality, list(cfg.data.labels)) == (50, "mixed", ["expert", "noisy"])
     # a whole group chosen on the command line stands as chosen
     cfg = compose_config([*ft, "demos=default"], command="finetune")
-    _adopt_start_data(cfg, bc, given=["demos"])
+    adopt_start_data(cfg, bc, given=["demos"])
     assert (
         cfg.demos.num == 100
         and cfg.demos.quality == "expert"

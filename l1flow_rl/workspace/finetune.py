@@ -45,7 +45,7 @@ from l1flow_rl.workspace.distributed import resolve_device
 from l1flow_rl.workspace.harness import Run
 from l1flow_rl.workspace.rl_data import RLBuffers
 
-__all__ = ["run_finetune"]
+__all__ = ["adopt_start_data", "run_finetune", "start_dataset"]
 
 #: fields a resumed run may change beside the harness's (cadences only)
 MAY_CHANGE = ("finetune.log_every", "offline.eval_every", "online.eval_every", "online.checkpoint_every")
@@ -107,7 +107,7 @@ def _check_task(bc_cfg: DictConfig, cfg: DictConfig, path: str) -> None:
         )
 
 
-def _adopt_start_data(cfg: DictConfig, bc_cfg: DictConfig, given: list[str]) -> None:
+def adopt_start_data(cfg: DictConfig, bc_cfg: DictConfig, given: list[str]) -> None:
     """Fine-tune on the data the start was trained on: each ``demos.*`` and ``data.*`` field takes the
     BC run's value unless the command line sets it (``given``: the dotted keys it sets, e.g.
     ``["demos.num"]``, or ``["demos"]`` for a group choice), so ``config.yaml`` records the data the
@@ -122,10 +122,10 @@ def _adopt_start_data(cfg: DictConfig, bc_cfg: DictConfig, given: list[str]) -> 
                     cfg[group][key] = value
 
 
-def _dataset(cfg: DictConfig, bc_state: dict, given: list[str]) -> Path:
+def start_dataset(cfg: DictConfig, bc_state: dict, given: list[str]) -> Path:
     """The file the command line names (``data.path``) or makes (``demos.*``), else the BC run's own
     demonstrations, else the BC run's recipe (its ``demos``/``data``, adopted by
-    :func:`_adopt_start_data`) made again or found in ``data_dir``."""
+    :func:`adopt_start_data`) made again or found in ``data_dir``."""
     if any(k == "data.path" or k == "demos" or k.startswith("demos.") for k in given):
         return resolve_dataset(cfg)
     saved = bc_state.get("dataset")
@@ -147,7 +147,7 @@ def run_finetune(cfg: DictConfig) -> int:
         if bc_cfg.get("encoder") is not None and "encoder" in cfg:
             cfg.encoder = OmegaConf.merge(cfg.encoder, bc_cfg.encoder)
     given_data = [*overrides_under("demos"), *overrides_under("data")]
-    _adopt_start_data(cfg, bc_cfg, given_data)
+    adopt_start_data(cfg, bc_cfg, given_data)
     algorithm = FINETUNE_ALGORITHMS[cfg.finetune.algorithm]
     fcfg, off, on = cfg.finetune, cfg.offline, cfg.online
     plain = OmegaConf.to_container(cfg, resolve=True)
@@ -167,7 +167,7 @@ def run_finetune(cfg: DictConfig) -> int:
         history_keys=("loss_qvalue", "q_data_mean", "target_mean", "td_error_abs", "env_steps"),
         ties="earliest",  # the start is validated first: no reported policy falls below it
     ) as run:
-        dataset = _dataset(cfg, bc_state, given_data)
+        dataset = start_dataset(cfg, bc_state, given_data)
         episodes = load_task_episodes(cfg, dataset)
         flow = copy.deepcopy(bc_actor)
         loss = algorithm.build(flow, fcfg).to(device)
