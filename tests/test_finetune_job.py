@@ -122,8 +122,8 @@ def test_the_run_records_and_trains_on_the_data_its_start_was_trained_on(finetun
 def test_the_critic_bias_bench_reloads_a_finished_run_with_its_data(finetuned):
     from benchmarks.bench_critic_bias import load_run
 
-    # it read the run's data through the fine-tune job's own rule, and broke when that rule's
-    # signature changed: this is its only caller outside the job
+    # it reads the run's data through the fine-tune job's own rule (as bench_finetune_shock does), and
+    # broke when that rule's signature changed
     cfg, actor, episodes = load_run(finetuned)
     assert cfg.finetune.algorithm == "qc" and cfg.demos.num == 3
     assert int(episodes["episode"].unique().numel()) == 3
