@@ -10,8 +10,10 @@ The runs are ``l1flow-rl finetune finetune=<algorithm> ...`` with the preset's d
 per-algorithm budget overrides in :data:`CPU_BUDGET` (each says why: what the 2-core cost figures of
 ``bench_finetune_cost.py`` allow); ``--override`` adds more to every run, or replaces a budget
 override of the same key. Finished runs (their
-``eval.json``) are read back, interrupted ones resume from their last checkpoint; ``--collect-only``
-only reads.
+``eval.json``) are read back, interrupted ones resume from their last checkpoint, and finished ones
+shorter than asked (``--steps``, ``--continued-bc-updates``) are extended to it (``resume=true``: the
+run goes on as the longer run would have; its earlier report stays as ``eval_step<N>.json``);
+``--collect-only`` only reads.
 
 ``--continued-bc-updates N`` adds the control that separates "online data" from "more updates": per
 seed, N updates of the flow's own L1 Flow loss on the demonstrations alone, from the same checkpoint
@@ -112,6 +114,17 @@ def last_weights_eval_cmd(args, control_dir: Path, out_dir: Path) -> list[str]:
     ]
 
 
+def finished(run_dir: Path, name: str, args) -> bool:
+    """The run has its report (``eval.json``) at the length asked: ``--steps`` env steps, or for the
+    continued-BC control ``--continued-bc-updates`` updates."""
+    if not (run_dir / "eval.json").is_file():
+        return False
+    summary = json.loads((run_dir / "summary.json").read_text())
+    if name == "continued_bc":
+        return summary["offline_updates"] >= args.continued_bc_updates
+    return summary["env_steps"] >= args.steps
+
+
 def seeded_control(per_seed: dict[int, dict]) -> dict:
     """A control arm run once per seed: each seed's figures and the mean and spread of their tests."""
     spread = mean_and_spread([c["test"]["success_once"] for c in per_seed.values()])
@@ -155,10 +168,15 @@ def read_run(run_dir: Path) -> dict:
         summary = json.loads((run_dir / "summary.json").read_text())
         test = json.loads((run_dir / "eval.json").read_text())
     val = [e for e in history["evals"] if e.get("split", "val") == "val"]
-    # the harness's closing validation carries no phase and no env-step count: it is the run's last step
-    val = [
-        e if e.get("phase") else {**e, "phase": "final", "env_steps": summary.get("env_steps")} for e in val
-    ]
+
+    # the harness's closing validation carries no phase and no env-step count: its step (offline
+    # updates + env steps) tells them; a run extended after it finished has one in the middle too
+    def closing(e: dict) -> dict:
+        if "step" not in e:
+            return {**e, "phase": "final", "env_steps": summary.get("env_steps")}
+        return {**e, "phase": "final", "env_steps": int(e["step"]) - int(summary.get("offline_updates") or 0)}
+
+    val = [e if e.get("phase") else closing(e) for e in val]
     rounds = history.get("rounds", [])
     trained = [r for r in rounds if r.get("policy") == "actor"]
 
@@ -292,7 +310,12 @@ def main(argv: list[str] | None = None) -> int:
         commands.update({("continued_bc", s): continued_bc_cmd(s, args, d) for s, d in control_dirs.items()})
         dirs.update({("continued_bc", s): d for s, d in control_dirs.items()})
     if not args.collect_only:
-        pending = [(key, dirs[key]) for key in commands if not (dirs[key] / "eval.json").is_file()]
+        pending = [(key, dirs[key]) for key in commands if not finished(dirs[key], key[0], args)]
+        for (name, _), run_dir in pending:
+            last = run_dir.with_name(f"{run_dir.name}_last")
+            if name == "continued_bc" and (last / "eval.json").is_file():  # the control is extended:
+                done = json.loads((run_dir / "summary.json").read_text())["offline_updates"]
+                last.rename(last.with_name(f"{last.name}_{done}"))  # its old last weights' test is kept
         running: list[tuple[tuple[str, int], subprocess.Popen]] = []
         while pending or running:
             while pending and len(running) < args.jobs:

@@ -186,6 +186,35 @@ def test_resume_of_an_online_run_killed_mid_way_matches_an_uninterrupted_run(
     _assert_same_run(resumed, load_checkpoint(finetuned / "checkpoints" / "latest.pt"))
 
 
+def test_a_finished_run_resumed_with_more_env_steps_goes_on_as_the_longer_run(
+    tmp_path, data_dir, bc_checkpoint, finetuned
+):
+    """online.steps=40 run to its end, then resumed with online.steps=80: the same weights, critics,
+    optimiser, buffers and rounds as the 80-step run (its online buffer, dumped at 40 + one round's
+    rows, grows to 80 + one round's); the first report is kept; a resume cannot shorten a run or
+    grow its offline phase once it went online."""
+    run_dir = tmp_path / "run"
+    args = _args(run_dir, data_dir, bc_checkpoint, "finetune=qc")
+    short = [a if a != "online.steps=80" else "online.steps=40" for a in args]
+    assert main(short) == 0
+    first = json.loads((run_dir / "eval.json").read_text())
+    assert load_checkpoint(run_dir / "checkpoints" / "latest.pt")["progress"]["env_steps"] == 40
+    for bad, says in (
+        ("online.steps=20", r"online\.steps=20: the run has already taken 40 env steps"),
+        ("offline.steps=6", r"offline\.steps=6: the run made 4 offline updates and went online"),
+    ):
+        with pytest.raises(finetune_job.ResumeMismatchError, match=says):
+            main(["--debug", *args, bad, "resume=true"])
+    assert main([*args, "resume=true"]) == 0
+    _assert_same_run(
+        load_checkpoint(run_dir / "checkpoints" / "latest.pt"),
+        load_checkpoint(finetuned / "checkpoints" / "latest.pt"),
+    )
+    assert json.loads((run_dir / "eval_step44.json").read_text()) == first  # 4 updates + 40 env steps
+    assert json.loads((run_dir / "summary_step44.json").read_text())["env_steps"] == 40
+    assert json.loads((run_dir / "summary.json").read_text())["env_steps"] == 80
+
+
 def test_frozen_qc_resumes_exactly_with_its_proposal_cache_redrawn(
     tmp_path, data_dir, bc_checkpoint, monkeypatch
 ):
@@ -360,6 +389,16 @@ def test_the_continued_bc_control_trains_on_demonstrations_without_an_env_step(
     bc = load_checkpoint(bc_checkpoint)
     assert any(not torch.equal(v, bc["ema"][k]) for k, v in state["model"].items())
     assert json.loads((run_dir / "eval.json").read_text())["episodes"] == 2
+    # the bench extends a finished control (--continued-bc-updates 6): the 6-update run's weights
+    args.continued_bc_updates = 6
+    assert main([*continued_bc_cmd(0, args, run_dir)[3:], "finetune.batch_size=16", "resume=true"]) == 0
+    straight_dir = tmp_path / "straight"
+    assert main([*continued_bc_cmd(0, args, straight_dir)[3:], "finetune.batch_size=16"]) == 0
+    extended, straight = (load_checkpoint(d / "checkpoints" / "latest.pt") for d in (run_dir, straight_dir))
+    assert extended["progress"] == straight["progress"] and straight["progress"]["offline_updates"] == 6
+    assert _differing(extended["model"], straight["model"]) == []
+    assert _differing(extended["ema"], straight["ema"]) == []
+    assert (run_dir / "eval_step4.json").is_file() and (run_dir / "eval.json").is_file()
 
 
 def test_the_shock_bench_reads_every_arm_from_the_same_start_and_adds_arms(tmp_path, bc_checkpoint):

@@ -98,6 +98,33 @@ def test_a_finished_run_reads_its_closing_validation_at_its_last_env_step(tmp_pa
     assert aggregate({0: run})["curve"][0] == {"env_steps": 0, "mean": 0.18, "min": 0.18, "max": 0.18}
 
 
+def test_a_run_extended_after_it_finished_reads_each_closing_validation_at_its_env_step(tmp_path):
+    """A 60k run resumed to 100k keeps its 60k closing validation among the evaluations; with 200
+    offline updates first, the harness's step is offline updates + env steps."""
+    from benchmarks.bench_finetune_online import finished, read_run
+
+    evals = [
+        {"step": 0, "split": "val", "phase": "start", "env_steps": 0, "success_once": 0.44},
+        {"step": 60_200, "split": "val", "phase": None, "env_steps": None, "success_once": 0.52},
+        {"step": 80_200, "split": "val", "phase": "online", "env_steps": 80_000, "success_once": 0.5},
+        {"step": 100_200, "split": "val", "phase": None, "env_steps": None, "success_once": 0.6},
+        {"step": 100_200, "split": "test", "success_once": 0.58},
+    ]
+    (tmp_path / "history.json").write_text(json.dumps({"evals": evals, "rounds": []}))
+    summary = {"env_steps": 100_000, "offline_updates": 200, "online_updates": 8}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    (tmp_path / "eval.json").write_text(json.dumps({"success_once": 0.58, "episodes": 100}))
+    steps = [(v["env_steps"], v["success_once"]) for v in read_run(tmp_path)["validation"]]
+    assert steps == [(0, 0.44), (60_000, 0.52), (80_000, 0.5), (100_000, 0.6)]
+    # the bench extends a finished run shorter than asked, and a control with fewer updates
+    ask = argparse.Namespace(steps=100_000, continued_bc_updates=8000)
+    assert finished(tmp_path, "filtered_bc", ask)
+    assert not finished(tmp_path, "filtered_bc", argparse.Namespace(steps=150_000))
+    assert not finished(tmp_path, "continued_bc", ask)  # 200 offline updates of 8000
+    (tmp_path / "eval.json").unlink()
+    assert not finished(tmp_path, "filtered_bc", ask)  # no report: interrupted, resumed
+
+
 def test_the_continued_bc_last_weights_control_is_an_eval_of_latest_on_the_test_seeds(tmp_path):
     args = argparse.Namespace(task="robosuite_can", test_episodes=100)
     control_dir = tmp_path / "robosuite_can_continued_bc_seed0"

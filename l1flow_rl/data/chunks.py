@@ -25,12 +25,14 @@ which keeps image batches small.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 from torch import Tensor
 from torchrl.data import LazyMemmapStorage
@@ -284,6 +286,27 @@ class ChunkStorage(LazyMemmapStorage):
         self.metadata: EpisodeMetadata | None = None
         self.alive: Tensor | None = None
         self.revision = 0
+
+    def loads(self, path) -> None:
+        """TorchRL's ``loads``, and also into a larger storage than the one dumped (a fine-tune resumed
+        with more ``online.steps``): the saved rows are copied to the front, the rest stay empty.
+        TorchRL's checkpointer copies a dump only into a storage of its own size."""
+        saved = TensorDict.load_memmap(path)
+        rows = int(saved.shape[0])
+        if rows == self.max_size:
+            return super().loads(path)
+        if rows > self.max_size:
+            raise EpisodeDataError(
+                f"{path}: the saved buffer holds {rows} rows, more than this buffer's {self.max_size}; a "
+                "resumed run cannot keep fewer online steps than it stored"
+            )
+        length = int(json.loads((Path(path) / "storage_metadata.json").read_text())["len"])
+        if not self.initialized:
+            self._init(saved[0])
+        self._storage[:rows].update_(saved)
+        self._len = length
+        self._bump_mutation_revision()
+        return None
 
     def set(self, cursor, data, *, set_cursor: bool = True):
         if isinstance(data, TensorDictBase):

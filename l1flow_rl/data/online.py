@@ -312,7 +312,11 @@ class EpisodeWriter(Writer):
         self._live = {int(e): (int(a), int(b)) for e, a, b in state_dict["live"].tolist()}
         self.collector = CollectorEpisodes(self.keys)
         if self._storage is not None:
-            self._storage.alive = state_dict["alive"].clone() if state_dict["alive"].numel() else None
+            alive = state_dict["alive"].clone() if state_dict["alive"].numel() else None
+            grown = None if alive is None else self._storage.max_size - alive.numel()
+            if grown:  # a storage larger than the dumped one (a resumed run given more steps): rows unused
+                alive = torch.cat([alive, alive.new_zeros(grown)])
+            self._storage.alive = alive
             self._storage._len = self._high
             self._storage.revision += 1
 

@@ -15,7 +15,8 @@
 4. The chosen policy (best validation, the start included) on the test seeds: ``eval.json``.
 
 The run directory, resume (``resume=true``, exact: the online buffer and every RNG are in the
-checkpoint), checkpoints, validation and the report are the harness's
+checkpoint; a finished run resumed with more ``online.steps`` goes on as the longer run would have),
+checkpoints, validation and the report are the harness's
 (:mod:`l1flow_rl.workspace.harness`); this module is the loop. Checkpoints hold the acting module
 with a config that rebuilds it (``policy.finetune``), so ``l1flow-rl eval`` takes them unchanged.
 """
@@ -38,17 +39,30 @@ from tqdm import tqdm
 from l1flow_rl.config.overrides import overrides_under
 from l1flow_rl.ema import DPEma, make_ema
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
-from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_actor, load_checkpoint
+from l1flow_rl.workspace.checkpoint import (
+    CheckpointMismatchError,
+    ResumeMismatchError,
+    load_actor,
+    load_checkpoint,
+)
 from l1flow_rl.workspace.collect import OnlineCollector, round_stats
 from l1flow_rl.workspace.dataset import load_task_episodes, resolve_dataset
 from l1flow_rl.workspace.distributed import resolve_device
 from l1flow_rl.workspace.harness import Run
 from l1flow_rl.workspace.rl_data import RLBuffers
 
-__all__ = ["adopt_start_data", "run_finetune", "start_dataset"]
+__all__ = ["adopt_start_data", "check_extension", "run_finetune", "start_dataset"]
 
-#: fields a resumed run may change beside the harness's (cadences only)
-MAY_CHANGE = ("finetune.log_every", "offline.eval_every", "online.eval_every", "online.checkpoint_every")
+#: fields a resumed run may change beside the harness's: the cadences, and the two phases' lengths
+#: (only to extend the run: :func:`check_extension`)
+MAY_CHANGE = (
+    "finetune.log_every",
+    "offline.eval_every",
+    "online.eval_every",
+    "online.checkpoint_every",
+    "offline.steps",
+    "online.steps",
+)
 
 
 class ActingSwitch(TensorDictModuleBase):
@@ -104,6 +118,28 @@ def _check_task(bc_cfg: DictConfig, cfg: DictConfig, path: str) -> None:
         raise CheckpointMismatchError(
             f"checkpoint={path!r} is a fine-tuned policy ({bc_cfg.policy.finetune.algorithm}); pass the BC "
             "checkpoint it started from"
+        )
+
+
+def check_extension(progress: dict[str, Any], cfg: DictConfig, path: str) -> None:
+    """A resumed run may be given more steps than it was started with (``online.steps=100000`` on a
+    finished 60k run goes on from 60k, as the 100k run would have), never fewer than it has done;
+    ``offline.steps`` may grow only while no env step has been taken (the offline phase comes first)."""
+    done_off, done_on = int(progress["offline_updates"]), int(progress["env_steps"])
+    errors = []
+    if int(cfg.online.steps) < done_on:
+        errors.append(f"online.steps={cfg.online.steps}: the run has already taken {done_on} env steps")
+    if int(cfg.offline.steps) < done_off:
+        errors.append(f"offline.steps={cfg.offline.steps}: the run already made {done_off} offline updates")
+    elif int(cfg.offline.steps) > done_off and done_on > 0:
+        errors.append(
+            f"offline.steps={cfg.offline.steps}: the run made {done_off} offline updates and went online "
+            f"({done_on} env steps); the offline phase can grow only before the first env step"
+        )
+    if errors:
+        raise ResumeMismatchError(
+            f"resume=true from {path!r}: a resume may lengthen a run, not shorten or reorder it:\n  "
+            + "\n  ".join(errors)
         )
 
 
@@ -167,6 +203,8 @@ def run_finetune(cfg: DictConfig) -> int:
         history_keys=("loss_qvalue", "q_data_mean", "target_mean", "td_error_abs", "env_steps"),
         ties="earliest",  # the start is validated first: no reported policy falls below it
     ) as run:
+        if run.resumed is not None:  # before the data and the networks are built
+            check_extension(run.resumed["progress"], cfg, str(run.latest))
         dataset = start_dataset(cfg, bc_state, given_data)
         episodes = load_task_episodes(cfg, dataset)
         flow = copy.deepcopy(bc_actor)

@@ -262,6 +262,11 @@ class Run:
         self._t_begin = time.perf_counter()
 
     def _open_record(self) -> None:
+        if self.resumed is not None:  # a finished run resumed (to extend it) keeps its earlier report
+            for name in ("eval.json", "summary.json"):
+                done = self.run_dir / name
+                if done.is_file():
+                    done.replace(done.with_name(f"{done.stem}_step{self._first_step}.json"))
         OmegaConf.save(self.cfg, self.run_dir / "config.yaml")
         tcfg = self.cfg.train
         self.logger = make_logger(
