@@ -114,7 +114,7 @@ def last_weights_eval_cmd(args, control_dir: Path, out_dir: Path) -> list[str]:
     ]
 
 
-def finished(run_dir: Path, name: str, args) -> bool:
+def at_asked_length(run_dir: Path, name: str, args) -> bool:
     """The run has its report (``eval.json``) at the length asked: ``--steps`` env steps, or for the
     continued-BC control ``--continued-bc-updates`` updates."""
     if not (run_dir / "eval.json").is_file():
@@ -310,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
         commands.update({("continued_bc", s): continued_bc_cmd(s, args, d) for s, d in control_dirs.items()})
         dirs.update({("continued_bc", s): d for s, d in control_dirs.items()})
     if not args.collect_only:
-        pending = [(key, dirs[key]) for key in commands if not finished(dirs[key], key[0], args)]
+        pending = [(key, dirs[key]) for key in commands if not at_asked_length(dirs[key], key[0], args)]
         for (name, _), run_dir in pending:
             last = run_dir.with_name(f"{run_dir.name}_last")
             if name == "continued_bc" and (last / "eval.json").is_file():  # the control is extended:

@@ -101,7 +101,7 @@ def test_a_finished_run_reads_its_closing_validation_at_its_last_env_step(tmp_pa
 def test_a_run_extended_after_it_finished_reads_each_closing_validation_at_its_env_step(tmp_path):
     """A 60k run resumed to 100k keeps its 60k closing validation among the evaluations; with 200
     offline updates first, the harness's step is offline updates + env steps."""
-    from benchmarks.bench_finetune_online import finished, read_run
+    from benchmarks.bench_finetune_online import at_asked_length, read_run
 
     evals = [
         {"step": 0, "split": "val", "phase": "start", "env_steps": 0, "success_once": 0.44},
@@ -118,11 +118,11 @@ def test_a_run_extended_after_it_finished_reads_each_closing_validation_at_its_e
     assert steps == [(0, 0.44), (60_000, 0.52), (80_000, 0.5), (100_000, 0.6)]
     # the bench extends a finished run shorter than asked, and a control with fewer updates
     ask = argparse.Namespace(steps=100_000, continued_bc_updates=8000)
-    assert finished(tmp_path, "filtered_bc", ask)
-    assert not finished(tmp_path, "filtered_bc", argparse.Namespace(steps=150_000))
-    assert not finished(tmp_path, "continued_bc", ask)  # 200 offline updates of 8000
+    assert at_asked_length(tmp_path, "filtered_bc", ask)
+    assert not at_asked_length(tmp_path, "filtered_bc", argparse.Namespace(steps=150_000))
+    assert not at_asked_length(tmp_path, "continued_bc", ask)  # 200 offline updates of 8000
     (tmp_path / "eval.json").unlink()
-    assert not finished(tmp_path, "filtered_bc", ask)  # no report: interrupted, resumed
+    assert not at_asked_length(tmp_path, "filtered_bc", ask)  # no report: interrupted, resumed
 
 
 def test_the_continued_bc_last_weights_control_is_an_eval_of_latest_on_the_test_seeds(tmp_path):
