@@ -50,6 +50,10 @@ def make_logger(kind: str, run_dir: Path, state: dict | None, **options: Any):
     """The run's logger; ``state`` (a saved ``logger.state_dict()``) resumes it. ``options`` are
     :func:`logger_kwargs`' (project, group, run_name, default_name, config)."""
     kwargs = logger_kwargs(kind, run_dir, **options)
+    if state is not None:
+        # TorchRL reopens the saved log_dir: a run copied, moved or resumed with another run_dir
+        # went on logging into its old directory (seen: a copied fine-tune appended to the original's CSVs)
+        state = {**state, "log_dir": kwargs["logger_name"]}
     return get_logger(kwargs.pop("logger_type"), state_dict=state, **kwargs)
 
 
