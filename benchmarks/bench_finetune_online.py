@@ -195,6 +195,8 @@ def read_run(run_dir: Path) -> dict:
             for e in val
         ],
         "collected_success": [[r["env_steps"], r.get("episode_success")] for r in rounds],
+        # unbiased (collect.round_stats): each env's first episode per round; absent in older runs
+        "collected_first_episode_success": [[r["env_steps"], r.get("first_episode_success")] for r in rounds],
         "test": {k: test.get(k) for k in ("success_once", "success_at_end", "episodes", "ci95", "selection")},
         "start_validation": val[0]["success_once"] if val else None,
         "env_steps_per_s_warmup": mean("env_steps_per_s", [r for r in rounds if r.get("policy") == "start"]),

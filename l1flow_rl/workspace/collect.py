@@ -61,6 +61,19 @@ def round_stats(batch: TensorDictBase) -> dict[str, float | None]:
         succeeded = int((done & success.bool().reshape(-1)).sum())
         out["episodes_succeeded"] = float(succeeded)
         out["episode_success"] = succeeded / ended if ended else None
+        if batch.batch_dims == 2:  # [envs, steps]: each env's first episode of the round
+            # episode_success is biased upward: an episode started after an early success ends
+            # within the round only if it succeeds too (the cut ones are not counted). Each env's
+            # first episode ends whatever its outcome when a round is one full episode per env
+            # (online.frames_per_round=0); measured on Can: 0.59-0.70 ended share vs 0.47-0.64 first.
+            done_2d = batch.get(("next", "done")).bool().reshape(batch.shape)
+            success_2d = success.bool().reshape(batch.shape)
+            ends = done_2d.any(dim=1)
+            first_end = done_2d.float().argmax(dim=1)
+            first_ok = success_2d[torch.arange(batch.shape[0]), first_end] & ends
+            n_first = int(ends.sum())
+            out["first_episodes"] = float(n_first)
+            out["first_episode_success"] = int(first_ok.sum()) / n_first if n_first else None
     return out
 
 

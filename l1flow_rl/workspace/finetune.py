@@ -406,7 +406,10 @@ def _plot(run) -> None:
         )
     rounds = run.records.get("rounds", [])
     if rounds:
-        rate = [float("nan") if r.get("episode_success") is None else r["episode_success"] for r in rounds]
+        # each env's first episode per round where recorded: the ended share counts a follow-up
+        # episode only when it succeeds before the round's end (collect.round_stats)
+        key = "first_episode_success" if "first_episode_success" in rounds[-1] else "episode_success"
+        rate = [float("nan") if r.get(key) is None else r[key] for r in rounds]
         ax_s.plot([r["env_steps"] for r in rounds], rate, ".--", alpha=0.6, label="collected episodes")
     ax_s.set_xlabel("environment steps")
     ax_s.set_ylabel("success rate")
