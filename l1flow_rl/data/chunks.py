@@ -293,7 +293,8 @@ class ChunkStorage(LazyMemmapStorage):
         TorchRL's checkpointer copies a dump only into a storage of its own size."""
         saved = TensorDict.load_memmap(path)
         rows = int(saved.shape[0])
-        if rows == self.max_size:
+        in_place = self.scratch_dir is not None and Path(self.scratch_dir).absolute() == Path(path).absolute()
+        if rows == self.max_size or in_place:  # in place: TorchRL maps the files as they are (no copy)
             return super().loads(path)
         if rows > self.max_size:
             raise EpisodeDataError(
