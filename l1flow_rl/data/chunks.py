@@ -291,10 +291,12 @@ class ChunkStorage(LazyMemmapStorage):
         """TorchRL's ``loads``, and also into a larger storage than the one dumped (a fine-tune resumed
         with more ``online.steps``): the saved rows are copied to the front, the rest stay empty.
         TorchRL's checkpointer copies a dump only into a storage of its own size."""
+        in_place = self.scratch_dir is not None and Path(self.scratch_dir).absolute() == Path(path).absolute()
+        if in_place:  # TorchRL maps the files as they are (no copy)
+            return super().loads(path)
         saved = TensorDict.load_memmap(path)
         rows = int(saved.shape[0])
-        in_place = self.scratch_dir is not None and Path(self.scratch_dir).absolute() == Path(path).absolute()
-        if rows == self.max_size or in_place:  # in place: TorchRL maps the files as they are (no copy)
+        if rows == self.max_size:
             return super().loads(path)
         if rows > self.max_size:
             raise EpisodeDataError(
