@@ -340,12 +340,14 @@ def test_filtered_bc_trains_the_flow_on_demonstrations_and_successful_episodes_o
     assert len(windows) == 2 and (windows[-1] > 0) == (sum(succeeded) > 0), (windows, succeeded, rounds)
 
 
+@pytest.mark.parametrize("preset", ["filtered_bc", "qc"])
 def test_with_an_ema_the_averaged_flow_is_saved_for_eval_and_resumes_exactly(
-    tmp_path, data_dir, bc_checkpoint, monkeypatch
+    tmp_path, data_dir, bc_checkpoint, monkeypatch, preset
 ):
     """finetune.ema_power: the raw flow trains, its EMA (one step per update) is what load_actor, hence
-    eval, validation and the test, get; a run killed mid-way resumes to the same EMA."""
-    args = ["finetune=filtered_bc", "finetune.batch_size=16", "finetune.ema_power=0.75", "eval.episodes=0"]
+    eval, validation and the test, get; a run killed mid-way resumes to the same EMA. QC acts with the
+    averaged flow proposing and its online critics picking."""
+    args = [f"finetune={preset}", "finetune.batch_size=16", "finetune.ema_power=0.75", "eval.episodes=0"]
     straight_dir = tmp_path / "straight"
     assert main(_args(straight_dir, data_dir, bc_checkpoint, *args)) == 0
     straight = load_checkpoint(straight_dir / "checkpoints" / "latest.pt")
@@ -356,6 +358,12 @@ def test_with_an_ema_the_averaged_flow_is_saved_for_eval_and_resumes_exactly(
     assert _differing(straight["ema"], straight["model"]) != []  # averaged, not the last iterate
     actor, _ = load_actor(straight_dir / "checkpoints" / "latest.pt")
     assert _differing(actor.state_dict(), straight["ema"]) == []
+    if preset == "qc":  # the flow averaged, the critics that pick are the online ones, not averaged
+        assert isinstance(actor, BestOfNActor)
+        averaged = _differing(straight["ema"], straight["model"])
+        assert averaged and all(k.startswith("actor.") for k in averaged), averaged
+        critic = {k: v for k, v in straight["model"].items() if k.startswith("critic.")}
+        assert critic and _differing(critic, {k: straight["ema"][k] for k in critic}) == []
     run_dir = tmp_path / "resumed"
     resumed = _killed_and_resumed(run_dir, _args(run_dir, data_dir, bc_checkpoint, *args), monkeypatch)
     _assert_same_run(resumed, straight)

@@ -80,7 +80,9 @@ class FinetuneConfig:
     gamma: float = 0.99
     tau: float = 0.005  # Polyak rate of the target critics (TorchRL SoftUpdate)
     lr: float = 3.0e-4  # Adam, every network
-    # the acting policy's EMA (Diffusion Policy's schedule, as BC trains); 0: the raw weights act
+    # an EMA that acts (Diffusion Policy's schedule, as BC trains): of the trained BC flow where the
+    # acting module wraps it (filtered BC, QC; going on from the BC run's EMA counter), else of the
+    # acting module (FQL's mu, DSRL's noise actor; from 0). 0: the raw weights act
     ema_power: float = 0.0
     batch_size: int = 256
     num_critics: int = 2

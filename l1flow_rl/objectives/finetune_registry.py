@@ -26,6 +26,7 @@ from torch import nn
 from torchrl.objectives import LossModule
 
 from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.best_of_n_actor import BestOfNActor
 from l1flow_rl.config.finetune import (
     DSRLNASettings,
     DSRLSettings,
@@ -60,7 +61,10 @@ class FinetuneAlgorithm:
     online windows start only at rows where that entry is 1 (DSRL: chunk starts, the only windows
     its critic can value); ``successful_episodes_only``: windows only in episodes that ended in
     success, demonstrations and online episodes alike (filtered BC); ``uses_offline_data``: False
-    where the batches need entries demonstrations lack (DSRL's noise). The loss is a
+    where the batches need entries demonstrations lack (DSRL's noise); ``with_flow(loss, flow)``:
+    the acting module with ``flow`` in place of the loss's trained BC flow (so that the flow's EMA
+    acts, ``finetune.ema_power``), for algorithms whose acting module wraps that flow; None where it
+    acts through networks of its own (its EMA then averages the whole acting module). The loss is a
     :class:`~l1flow_rl.ChunkCriticLoss`, or a plain TorchRL ``LossModule`` with ``actor`` and
     ``rl_horizon`` where there is no critic (filtered BC)."""
 
@@ -73,6 +77,7 @@ class FinetuneAlgorithm:
     online_anchor_key: str | None = None
     successful_episodes_only: bool = False
     uses_offline_data: bool = True
+    with_flow: Callable[[LossModule, L1FlowActor], nn.Module] | None = None
 
     def check(self, cfg: DictConfig) -> list[str]:
         """Problems of a composed run config for this algorithm, one line each."""
@@ -196,7 +201,14 @@ def _flow(loss) -> L1FlowActor:
     return loss.flow
 
 
-register_finetune_algorithm(FinetuneAlgorithm("qc", QCLoss, QCSettings, _build_qc, _flow))
+def _qc_with_flow(loss: QCLoss, flow: L1FlowActor) -> BestOfNActor:
+    # another flow proposes, the online critics still pick
+    return BestOfNActor(flow, loss.critic, num_samples=loss.actor.num_samples, rl_horizon=loss.rl_horizon)
+
+
+register_finetune_algorithm(
+    FinetuneAlgorithm("qc", QCLoss, QCSettings, _build_qc, _flow, with_flow=_qc_with_flow)
+)
 register_finetune_algorithm(FinetuneAlgorithm("fql", FQLLoss, FQLSettings, _build_fql, _flow))
 
 
@@ -222,5 +234,6 @@ register_finetune_algorithm(
         _build_filtered_bc,
         _flow,
         successful_episodes_only=True,
+        with_flow=lambda loss, flow: flow,  # the flow is the acting module
     )
 )

@@ -81,11 +81,16 @@ class ActingSwitch(TensorDictModuleBase):
 
 
 def update(
-    loss, optimizer: torch.optim.Optimizer, target_update, batch: TensorDictBase, ema: DPEma | None = None
+    loss,
+    optimizer: torch.optim.Optimizer,
+    target_update,
+    batch: TensorDictBase,
+    ema: DPEma | None = None,
+    averaged: torch.nn.Module | None = None,
 ) -> dict[str, Any]:
     """One update: every ``loss_*`` term summed, one Adam step, one Polyak step of the target critics,
-    one step of the acting policy's EMA (``finetune.ema_power``). Returns the loss's outputs
-    (tensors: read to the host only when logged)."""
+    one step of the EMA (``finetune.ema_power``) of ``averaged`` (default: the loss's acting actor).
+    Returns the loss's outputs (tensors: read to the host only when logged)."""
     out = loss(batch)
     total = sum(v for k, v in out.items() if k.startswith("loss_"))
     optimizer.zero_grad(set_to_none=True)
@@ -94,7 +99,7 @@ def update(
     if target_update is not None:
         target_update.step()
     if ema is not None:
-        ema.update_parameters(loss.actor)
+        ema.update_parameters(loss.actor if averaged is None else averaged)
     return {k: v.detach() for k, v in out.items()}
 
 
@@ -214,15 +219,21 @@ def run_finetune(cfg: DictConfig) -> int:
         start = algorithm.start_actor(loss)
         # With finetune.ema_power the averaged actor acts, is validated, tested and saved (the raw one
         # trains): measured on Square, constant-LR iterates of continued BC swung 0.16-0.68 in 8k updates
-        ema = make_ema(loss.actor, power=float(fcfg.ema_power)) if fcfg.ema_power > 0 else None
-        if ema is not None and loss.actor is flow and bc_state.get("ema_n_averaged") is not None:
-            # The acting actor is the BC flow itself, whose weights are the BC run's EMA: the average
-            # goes on from the BC run's counter, as if BC had gone on. From 0 it copied the first,
-            # shocked iterates (held L1 Flow loss 0.022 -> 0.055 in 10 updates at 3e-4; continued:
-            # 0.022-0.023; benchmarks/results/finetune_shock_*.json). Algorithms whose acting module
-            # holds new networks (critics, a noise or one-step actor) start their EMA at 0.
+        # Where the acting module wraps the trained BC flow (filtered BC: is it; QC: proposes with it),
+        # the EMA averages that flow, whose weights are the BC run's EMA: the average goes on from the
+        # BC run's counter, as if BC had gone on. From 0 it copied the first, shocked iterates (held L1
+        # Flow loss 0.022 -> 0.055 in 10 updates at 3e-4; continued: 0.022-0.023;
+        # benchmarks/results/finetune_shock_*.json). Otherwise (new networks act: a noise or one-step
+        # actor; a frozen flow) the EMA averages the acting module from 0.
+        flow_trains = any(p.requires_grad for p in flow.parameters())
+        averaged = flow if algorithm.with_flow is not None and flow_trains else loss.actor
+        ema = make_ema(averaged, power=float(fcfg.ema_power)) if fcfg.ema_power > 0 else None
+        if ema is not None and averaged is flow and bc_state.get("ema_n_averaged") is not None:
             ema.n_averaged.copy_(bc_state["ema_n_averaged"])
-        policy = loss.actor if ema is None else ema.module
+        if ema is None:
+            policy = loss.actor
+        else:
+            policy = algorithm.with_flow(loss, ema.module) if averaged is flow else ema.module
         acting = ActingSwitch(start, policy)
         optimizer = torch.optim.Adam([p for p in loss.parameters() if p.requires_grad], lr=float(fcfg.lr))
         # a loss without critics (filtered BC) has no targets to move
@@ -251,7 +262,8 @@ def run_finetune(cfg: DictConfig) -> int:
             model = bc_actor if saved["describe_start"] else loss.actor
             return {
                 "model": model.state_dict(),
-                "ema": None if ema is None or saved["describe_start"] else ema.module.state_dict(),
+                # the acting module's weights with the averaged ones (what load_actor(use_ema) rebuilds)
+                "ema": None if ema is None or saved["describe_start"] else policy.state_dict(),
                 "ema_n_averaged": None if ema is None else ema.n_averaged.clone(),
                 "config": start_config if saved["describe_start"] else tuned_config,
                 "source_checkpoint": str(cfg.checkpoint),
@@ -272,7 +284,7 @@ def run_finetune(cfg: DictConfig) -> int:
                     raise CheckpointMismatchError(  # a checkpoint from before the field
                         f"{run.latest} holds no EMA: resume it with finetune.ema_power=0"
                     )
-                ema.module.load_state_dict(resumed["ema"])
+                policy.load_state_dict(resumed["ema"])
                 ema.n_averaged.copy_(resumed["ema_n_averaged"])
             optimizer.load_state_dict(resumed["optimizer"])
             if resumed.get("online_buffer"):
@@ -304,7 +316,9 @@ def run_finetune(cfg: DictConfig) -> int:
 
         with run.phase("offline"):
             while progress["offline_updates"] < off.steps:
-                metrics = update(loss, optimizer, target_update, buffers.sample_offline().to(device), ema)
+                metrics = update(
+                    loss, optimizer, target_update, buffers.sample_offline().to(device), ema, averaged
+                )
                 progress["offline_updates"] += 1
                 n = progress["offline_updates"]
                 if n % fcfg.log_every == 0 or n == off.steps:
@@ -333,7 +347,7 @@ def run_finetune(cfg: DictConfig) -> int:
                         t0, metrics = time.perf_counter(), {}
                         while progress["online_updates"] < due:
                             batch = buffers.sample_online().to(device)
-                            metrics = update(loss, optimizer, target_update, batch, ema)
+                            metrics = update(loss, optimizer, target_update, batch, ema, averaged)
                             progress["online_updates"] += 1
                         update_s = time.perf_counter() - t0
                         updates = due - int(on.updates_per_step * max(0, before - on.warmup_steps))
