@@ -330,6 +330,7 @@ def test_ablations_quick_mode_covers_every_variant(tmp_path):
     assert nfe["euler5"] == 5.0 and nfe["t_first_0.3"] == 2.0 and nfe["default"] == 2.0
 
 
+@pytest.mark.slow  # ~25 s: a benchmark script, run on purpose
 def test_train_throughput_quick_mode_times_every_arm_and_cuda_latency_refuses_without_cuda(tmp_path, capsys):
     import torch
 

@@ -26,6 +26,7 @@ def _assert_machine(machine: dict) -> None:
 
 
 @pytest.mark.pusht
+@pytest.mark.slow  # ~20 s: a benchmark script, run on purpose
 def test_pusht_env_quick_mode_rates_every_setting_of_both_observations_against_raw(tmp_path):
     pytest.importorskip("gym_pusht", reason=PUSHT_HINT)
     from benchmarks import bench_pusht_env
@@ -75,6 +76,7 @@ def test_pusht_expert_quick_mode_scores_each_seed_and_sums_up_the_sides(tmp_path
 
 
 @pytest.mark.robosuite
+@pytest.mark.slow  # ~30 s: a benchmark script, run on purpose
 def test_robosuite_experts_quick_mode_runs_every_task_for_its_seeds(tmp_path):
     pytest.importorskip("robosuite", reason="needs robosuite: pip install 'l1flow-rl[robosuite]'")
     from benchmarks import bench_robosuite_experts
@@ -102,6 +104,7 @@ def test_robosuite_experts_quick_mode_runs_every_task_for_its_seeds(tmp_path):
 
 
 @pytest.mark.robosuite
+@pytest.mark.slow  # ~30 s: a benchmark script, run on purpose
 def test_robosuite_throughput_quick_mode_times_each_adapter_against_its_raw_baseline(tmp_path):
     pytest.importorskip("robosuite", reason="needs robosuite: pip install 'l1flow-rl[robosuite]'")
     from benchmarks import bench_robosuite_throughput as bench

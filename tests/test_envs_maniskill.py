@@ -47,7 +47,8 @@ def test_state_specs_pass_check_env_specs(num_envs, state1, state2):
     assert set(env.full_done_spec.keys()) == {"done", "terminated", "truncated"}
 
 
-@pytest.mark.parametrize("num_envs", [1, 2])
+# two envs (~20 s) are slow; one env keeps RGB specs checked by default
+@pytest.mark.parametrize("num_envs", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_rgb_specs_pass_check_env_specs(num_envs):
     env = make_env(
         "maniskill_pushcube", num_envs=num_envs, obs_mode="rgb", image_size=IMAGE, max_episode_steps=4

@@ -186,6 +186,7 @@ def test_resume_of_an_online_run_killed_mid_way_matches_an_uninterrupted_run(
     _assert_same_run(resumed, load_checkpoint(finetuned / "checkpoints" / "latest.pt"))
 
 
+@pytest.mark.slow  # ~30 s; exact resume is test_resume_of_an_online_run_killed_mid_way's by default
 def test_a_finished_run_resumed_with_more_env_steps_goes_on_as_the_longer_run(
     tmp_path, data_dir, bc_checkpoint, finetuned
 ):

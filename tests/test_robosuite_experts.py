@@ -22,7 +22,15 @@ from l1flow_rl.experts.robosuite.scripted import canonical_rotvec  # noqa: E402
 
 @pytest.mark.parametrize(
     "task_name",
-    ["robosuite_lift", "robosuite_stack", "robosuite_can", "robosuite_square", "robosuite_toolhang"],
+    [
+        "robosuite_lift",
+        "robosuite_stack",
+        "robosuite_can",
+        # ~20 s; by default the Square expert's demonstrations are made and trained on in
+        # test_hard_tasks_train and replayed to success in test_robosuite_square
+        pytest.param("robosuite_square", marks=pytest.mark.slow),
+        pytest.param("robosuite_toolhang", marks=pytest.mark.slow),  # ~60 s
+    ],
 )
 def test_expert_succeeds_on_most_of_five_seeds(task_name):
     task = load_task_config(task_name)
@@ -86,6 +94,7 @@ def test_demos_command_then_train_end_to_end(tmp_path):
     assert (run / "checkpoints" / "latest.pt").is_file()
 
 
+@pytest.mark.slow  # ~20 s; test_pusht_expert's Ctrl-C case covers the demo workers by default
 def test_ctrl_c_stops_the_demo_workers_quietly(tmp_path):
     # the forkserver's workers ignore Ctrl-C (the main process reports it once) and the pool drops its
     # queued episodes: before, each worker printed its own KeyboardInterrupt traceback

@@ -193,6 +193,9 @@ FINETUNE = [
 ]
 
 
+# ~40 s, slow; by default a SIGTERM'd training run resumes exactly (above) and so does an online
+# fine-tune stopped mid-way (test_finetune_job)
+@pytest.mark.slow
 def test_sigterm_during_online_fine_tuning_checkpoints_and_resumes_bit_exactly(tmp_path, data_dir):
     # the online buffer's TorchRL storage installs its own SIGTERM handler (it deletes the buffer's
     # files, then passes the signal on to ours), ahead of the harness's: the run must still finish
