@@ -294,3 +294,39 @@ def test_filtered_bc_buffers_drop_the_demonstrations_that_fail_and_count_them():
     )
     with pytest.raises(EpisodeDataError, match=r"none of the 2 demonstration episodes .* ends in success"):
         RLBuffers(recorded, failed, 8, seed=0, successful_episodes_only=True)
+
+
+class _Planted:
+    """A pickle that writes a file when unpickled: what a planted ``prefetch.pkl`` could run."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (open, (self.marker, "w"))
+
+
+def test_a_resumed_online_buffer_refuses_a_prefetch_pickle_that_names_code(tmp_path):
+    # TorchRL's ReplayBuffer.loads unpickles prefetch.pkl with plain pickle.load
+    import pickle
+
+    from l1flow_rl.cli import compose_config
+    from l1flow_rl.errors import CheckpointReadError
+    from l1flow_rl.workspace.rl_data import RLBuffers
+
+    cfg = compose_config(["finetune=qc", "checkpoint=bc.pt", "finetune.batch_size=16"], command="finetune")
+    demos = make_episodes(lengths=(20, 25), terminated=(True, False))
+    buffers = RLBuffers(cfg, demos, 8, seed=0)
+    buffers.online.extend(make_episodes(lengths=(12,), terminated=(True,)))
+    buffers.dump_online(tmp_path / "online")
+    again = RLBuffers(cfg, demos, 8, seed=0)
+    again.load_online(tmp_path / "online")  # what the run wrote: builtins only, read back
+    assert len(again.online.storage) == len(buffers.online.storage) == 12
+
+    marker = tmp_path / "ran"
+    (tmp_path / "online" / "prefetch.pkl").write_bytes(pickle.dumps(_Planted(marker)))
+    with pytest.raises(
+        CheckpointReadError, match=r"prefetch\.pkl' cannot be read safely \(it names io\.open\)"
+    ):
+        RLBuffers(cfg, demos, 8, seed=0).load_online(tmp_path / "online")
+    assert not marker.exists()

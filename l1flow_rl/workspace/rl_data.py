@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import io
+import pickle
 import shutil
 from pathlib import Path
 from typing import Any
@@ -22,6 +24,7 @@ from l1flow_rl.config.finetune import REWARD_KEYS, round_frames
 from l1flow_rl.data import EpisodeDataError, make_chunk_buffer
 from l1flow_rl.data.episodes import episode_bounds
 from l1flow_rl.data.online import CORE_KEYS
+from l1flow_rl.errors import CheckpointReadError
 from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
 from l1flow_rl.workspace.dataset import chunk_padding
 
@@ -232,4 +235,28 @@ class RLBuffers:
             raise FileNotFoundError(
                 f"the checkpoint names the online buffer {str(directory)!r}, which does not exist"
             )
+        _refuse_unsafe_prefetch_state(directory / "prefetch.pkl")
         self.online.loads(directory)
+
+
+class _BuiltinsOnly(pickle.Unpickler):
+    def find_class(self, module: str, name: str) -> Any:
+        raise pickle.UnpicklingError(f"{module}.{name}")
+
+
+def _refuse_unsafe_prefetch_state(path: Path) -> None:
+    """TorchRL's ``ReplayBuffer.loads`` unpickles ``prefetch.pkl`` with plain ``pickle.load``, which
+    runs whatever code the file names. Ours (no prefetch) holds builtins only; read it first with
+    an unpickler that resolves no class, so a planted or foreign file is refused before TorchRL
+    loads it."""
+    if not path.is_file():
+        return  # TorchRL reads no prefetch state then
+    try:
+        _BuiltinsOnly(io.BytesIO(path.read_bytes())).load()
+    except pickle.UnpicklingError as err:
+        raise CheckpointReadError(
+            f"online buffer file {str(path)!r} cannot be read safely (it names {err}): an l1flow-rl "
+            "run writes builtins only there; resume only from run directories you trust"
+        ) from None
+    except Exception as err:  # torn or not a pickle at all
+        raise CheckpointReadError(f"online buffer file {str(path)!r} is not readable: {err}") from None
