@@ -451,6 +451,7 @@ def test_policy_in_the_loop_plans_one_chunk_per_8_steps_on_real_maniskill():
 
 
 @pytest.mark.maniskill
+@pytest.mark.slow  # ~70 s: a benchmark script, run on purpose (test_train_job covers the train command)
 def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
     pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
     from benchmarks import bench_main_job
