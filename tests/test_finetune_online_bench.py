@@ -8,7 +8,13 @@ import json
 
 import pytest
 
-from benchmarks.bench_finetune_online import aggregate, last_weights_eval_cmd, read_control, seeded_control
+from benchmarks.bench_finetune_online import (
+    aggregate,
+    last_weights_control,
+    last_weights_eval_cmd,
+    read_control,
+    seeded_control,
+)
 from benchmarks.finetune_report import render_finetune_online
 
 
@@ -150,3 +156,25 @@ def test_an_override_replaces_the_budgets_value_of_the_same_key():
     expected = ["finetune.qc.num_samples=8", "online.updates_per_step=0.1", "finetune.qc.freeze_flow=true"]
     assert merged == expected
     assert budget("filtered_bc", []) == []
+
+
+def test_last_weights_are_collected_per_seed_and_an_untested_seed_is_left_out(tmp_path):
+    # an online run's last weights beside its validated choice (PickCube mixed-50 seeds 0 and 1 kept
+    # their start by validation, 0.33 / 0.32; their last weights tested 0.36 / 0.39)
+    import argparse
+
+    finished = {}
+    for seed, rate in ((0, 0.36), (1, 0.39), (2, None)):
+        run = tmp_path / f"task_filtered_bc_seed{seed}"
+        run.mkdir()
+        finished[seed] = run
+        if rate is not None:
+            last = tmp_path / f"{run.name}_last"
+            last.mkdir()
+            (last / "eval.json").write_text(json.dumps({"success_once": rate, "episodes": 100}))
+    args = argparse.Namespace(collect_only=True)  # reads only: seed 2's test is not run
+    control = last_weights_control(finished, args)
+    assert sorted(control["seeds"]) == ["0", "1"]
+    assert control["test"]["success_once"] == pytest.approx(0.375)
+    assert (control["test"]["min"], control["test"]["max"], control["test"]["episodes"]) == (0.36, 0.39, 100)
+    assert last_weights_control({2: finished[2]}, args) is None
