@@ -331,8 +331,9 @@ def main(argv: list[str] | None = None) -> int:
         pending = [(key, dirs[key]) for key in commands if not at_asked_length(dirs[key], key[0], args)]
         for (name, _), run_dir in pending:
             last = run_dir.with_name(f"{run_dir.name}_last")
-            if name == "continued_bc" and (last / "eval.json").is_file():  # the control is extended:
-                done = json.loads((run_dir / "summary.json").read_text())["offline_updates"]
+            if (last / "eval.json").is_file():  # a finished run is extended: its last weights change
+                length = "offline_updates" if name == "continued_bc" else "env_steps"
+                done = json.loads((run_dir / "summary.json").read_text())[length]
                 last.rename(last.with_name(f"{last.name}_{done}"))  # its old last weights' test is kept
         running: list[tuple[tuple[str, int], subprocess.Popen]] = []
         while pending or running:
@@ -364,7 +365,7 @@ def main(argv: list[str] | None = None) -> int:
                 }
     for a in args.algorithms:  # each online run's last weights too, beside its validated choice
         finished = {s: dirs[(a, s)] for s in args.seeds if at_asked_length(dirs[(a, s)], a, args)}
-        last = last_weights_control(finished, args) if finished else None
+        last = last_weights_control(finished, args)
         if last:
             controls[f"{a}_last"] = {**last, "overrides": budget(a, args.override)}
     readable = lambda d: (d / "eval.json").is_file() or (d / "checkpoints" / "latest.pt").is_file()  # noqa: E731
