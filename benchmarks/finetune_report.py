@@ -225,7 +225,12 @@ def render_noise_draw(data: dict) -> str:
     return "\n".join(
         [
             f"`{data['checkpoint']}` ({data['task']}): the same {data['episodes']} episodes (seeds from "
-            f"{seeds['first']}, the validation split) under several seeds of the policy's noise.",
+            f"{seeds['first']}, the validation split) under several seeds of the policy's noise"
+            + (
+                f", with Gaussian noise of std {data['action_noise']} on every executed action."
+                if data.get("action_noise")
+                else "."
+            ),
             "",
             f"| {head} | mean | std over noise seeds | binomial std at the mean |",
             "|" + "---|" * (len(data["rows"]) + 3),
@@ -235,8 +240,26 @@ def render_noise_draw(data: dict) -> str:
             "A validation figure is one draw of the sampler's noise as much as of the episodes: a checkpoint "
             "chosen by it is chosen partly on that draw, which is why every reported figure is a test on "
             "held-out seeds of the chosen checkpoint.",
+            *_per_start_lines(data.get("per_start")),
         ]
     )
+
+
+def _per_start_lines(split: dict | None) -> list[str]:
+    """The starts solved under every draw, some and none, beside the split if success ignored the start."""
+    if split is None:  # files saved before the per-start count
+        return []
+    expected = split["expected_if_start_ignored"]
+    return [
+        "",
+        f"Per start, over {split['draws']} draws: solved under every draw / some / none.",
+        "",
+        "| starts | always | sometimes | never |",
+        "|---|---|---|---|",
+        f"| observed | {split['always']} | {split['sometimes']} | {split['never']} |",
+        f"| if success ignored the start | {expected['always']:.1f} | {expected['sometimes']:.1f} | "
+        f"{expected['never']:.1f} |",
+    ]
 
 
 def render_finetune_shock(data: dict) -> str:
