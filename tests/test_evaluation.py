@@ -73,6 +73,8 @@ def test_metrics_equal_counts_by_hand(env):
                 "seed": seed,
                 "success_once": bool(success.any()),
                 "success_at_end": bool(success[-1]),
+                # 1-based step of the first success, None for an episode that never succeeds
+                "first_success_step": int(success.nonzero()[0, 0]) + 1 if success.any() else None,
                 "return": rollout["next", "reward"].sum().item(),
                 "length": rollout.shape[0],
             }
@@ -85,12 +87,14 @@ def test_metrics_equal_counts_by_hand(env):
             want["success_at_end"],
             want["length"],
         )
+        assert got["first_success_step"] == want["first_success_step"]
         assert got["return"] == pytest.approx(want["return"], rel=1e-5)
         assert got["error"] is None
     assert any(e["success_once"] for e in by_hand), "the scripted pusher should solve some episodes"
     assert any(e["success_once"] != e["success_at_end"] for e in by_hand), (
         "no episode tells the metrics apart"
     )
+    assert any(1 < (e["first_success_step"] or 0) < STEPS for e in by_hand), "no success inside the episode"
     n = len(by_hand)
     assert result["episodes"] == n and result["errors"] == 0
     assert result["success_once"] == pytest.approx(sum(e["success_once"] for e in by_hand) / n)

@@ -39,6 +39,8 @@ class Episode:
     length: int = 0
     success_once: bool = False
     success_at_end: bool = False
+    #: the step (1-based) at which the episode first succeeded: how close a success came to the limit
+    first_success_step: int | None = None
     extra: dict[str, float | bool | None] = field(default_factory=dict)
     frames: list[np.ndarray] | None = None
     record: dict[str, Any] = field(default_factory=dict)
@@ -48,6 +50,8 @@ class Episode:
     ) -> None:
         self.ret += reward
         self.length += 1
+        if success and not self.success_once:
+            self.first_success_step = self.length
         self.success_once |= success
         self.success_at_end = success
         for name, value in extra.items():
@@ -63,6 +67,7 @@ class Episode:
             "seed": self.seed,
             "success_once": self.success_once and not failed,
             "success_at_end": self.success_at_end and not failed,
+            "first_success_step": None if failed else self.first_success_step,
             "return": self.ret,
             "length": self.length,
             **extra,
