@@ -52,6 +52,16 @@ def test_bad_fine_tuning_settings_fail_at_config_time_naming_the_field():
         compose_config(["finetune=fql", "finetune.q_agg=max"], command="finetune")
     with pytest.raises(ConfigValidationError, match=r"finetune\.ema_power=-0\.5: expected 0 \(no EMA\)"):
         compose_config(["finetune=filtered_bc", "finetune.ema_power=-0.5"], command="finetune")
+    with pytest.raises(ConfigValidationError, match=r"online\.action_noise=-0\.1: expected a std >= 0"):
+        compose_config(
+            ["finetune=filtered_bc", "online.steps=100", "online.action_noise=-0.1"], command="finetune"
+        )
+    # DSRL's critic values the stored steering noise: noise on the executed action would not match it
+    with pytest.raises(ConfigValidationError, match=r"online\.action_noise=0\.02: finetune\.algorithm=dsrl"):
+        compose_config(["finetune=dsrl", "online.action_noise=0.02"], command="finetune")
+    compose_config(
+        ["finetune=filtered_bc", "online.steps=100", "online.action_noise=0.02"], command="finetune"
+    )
     with pytest.raises(Exception, match="backup"):  # a retired knob is an unknown key
         compose_config(["finetune=qc", "finetune.backup=max"], command="finetune")
 

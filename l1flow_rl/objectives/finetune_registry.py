@@ -95,6 +95,12 @@ class FinetuneAlgorithm:
                     f"{cfg.online.seed_with_offline}: finetune.algorithm={self.name} cannot use "
                     "demonstrations; use online.offline_fraction=0 online.seed_with_offline=false"
                 )
+        if self.online_keys and cfg.online.get("action_noise", 0.0) > 0:
+            problems.append(
+                f"online.action_noise={cfg.online.action_noise}: finetune.algorithm={self.name} learns from "
+                f"the stored {list(self.online_keys)}, which noise on the executed action would not match; "
+                "use online.action_noise=0 (it explores through its own actor)"
+            )
         return problems
 
 

@@ -15,10 +15,10 @@ from typing import Any
 import torch
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase
+from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torchrl.collectors import Collector
 from torchrl.envs.utils import ExplorationType
-from torchrl.modules import MultiStepActorWrapper
+from torchrl.modules import AdditiveGaussianModule, MultiStepActorWrapper
 
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.config.finetune import round_frames
@@ -110,6 +110,13 @@ class OnlineCollector:
             render=False,
         )
         policy = MultiStepActorWrapper(actor, n_steps=int(cfg.policy.action_steps), init_key="is_init")
+        sigma = float(ocfg.get("action_noise", 0.0))
+        if sigma > 0:  # exploration noise on each executed (and stored) action, projected into the bounds
+            spec = self.env.action_spec.clone().to(device)  # the noise is added where the policy runs
+            noise = AdditiveGaussianModule(
+                spec, sigma_init=sigma, sigma_end=sigma, annealing_num_steps=1, device=device
+            )
+            policy = TensorDictSequential(policy, noise)
         # building the collector may run the policy once; keep that off the training RNG stream
         with torch.random.fork_rng(devices=[]):
             self.collector = Collector(
