@@ -37,7 +37,10 @@ from l1flow_rl.workspace.checkpoint import load_actor
 
 
 class ActionNoise(TensorDictModuleBase):
-    """The actor's chunk plus N(0, sigma^2) per action, clamped to the env's bounds [low, high]."""
+    """The actor's chunk plus N(0, sigma^2) per action, clamped to the env's bounds [low, high].
+
+    Not TorchRL's ``AdditiveGaussianModule`` (the collector's): the evaluator runs the chunk actor and
+    reads its ``policy.action_steps``, and that module needs a spec of the chunk's shape."""
 
     def __init__(self, actor: TensorDictModuleBase, sigma: float, low: torch.Tensor, high: torch.Tensor):
         super().__init__()
@@ -69,14 +72,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", required=True)
     args = parser.parse_args(argv)
+    if args.action_noise < 0:  # before the checkpoint and the simulator are loaded
+        parser.error(f"--action-noise {args.action_noise}: expected a std >= 0")
     noise_seeds = args.noise_seeds or [args.seed + i for i in range(4)]
     actor, cfg = load_actor(args.checkpoint, use_ema=True)
     task = task_from(cfg.task)
     rows, wins = [], {}
     # one env for every pass: evaluate reseeds each episode, so the passes differ only in the noise
     env = make_env(task, num_envs=args.num_envs, obs_horizon=int(cfg.policy.obs_horizon), render=False)
-    if args.action_noise < 0:
-        parser.error(f"--action-noise {args.action_noise}: expected a std >= 0")
     if args.action_noise > 0:
         space, dim = env.action_spec.space, env.action_spec.shape[-1]  # bounds per env: take one row
         low, high = space.low.reshape(-1, dim)[0], space.high.reshape(-1, dim)[0]
