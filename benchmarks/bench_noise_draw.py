@@ -42,9 +42,16 @@ class ActionNoise(TensorDictModuleBase):
     Not TorchRL's ``AdditiveGaussianModule`` (the collector's): the evaluator runs the chunk actor and
     reads its ``policy.action_steps``, and that module needs a spec of the chunk's shape."""
 
-    def __init__(self, actor: TensorDictModuleBase, sigma: float, low: torch.Tensor, high: torch.Tensor):
+    def __init__(
+        self,
+        actor: TensorDictModuleBase,
+        sigma: float,
+        low: torch.Tensor,
+        high: torch.Tensor,
+        per: str = "step",
+    ):
         super().__init__()
-        self.actor, self.sigma = actor, sigma
+        self.actor, self.sigma, self.per = actor, sigma, per
         self.policy = getattr(actor, "policy", None)  # the evaluator reads the executed steps from it
         self.in_keys, self.out_keys = actor.in_keys, actor.out_keys
         self.register_buffer("low", low)
@@ -54,7 +61,10 @@ class ActionNoise(TensorDictModuleBase):
         tensordict = self.actor(tensordict)
         key = self.out_keys[0]
         chunk = tensordict.get(key)
-        noisy = chunk + self.sigma * torch.randn_like(chunk)
+        # "chunk": one draw per chunk, the same offset on each of its steps (a drift of the
+        # delta-position target rather than a jitter); "step": an independent draw per action
+        shape = chunk.shape if self.per == "step" else (*chunk.shape[:-2], 1, chunk.shape[-1])
+        noisy = chunk + self.sigma * torch.randn(shape, dtype=chunk.dtype, device=chunk.device)
         return tensordict.set(key, torch.maximum(torch.minimum(noisy, self.high), self.low))
 
 
@@ -70,6 +80,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--action-noise", type=float, default=0.0, help="std of Gaussian noise on every executed action"
     )
+    parser.add_argument(
+        "--noise-per",
+        choices=("step", "chunk"),
+        default="step",
+        help="an independent draw per executed action, or one per chunk held over its steps",
+    )
     parser.add_argument("--out", required=True)
     args = parser.parse_args(argv)
     if args.action_noise < 0:  # before the checkpoint and the simulator are loaded
@@ -83,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.action_noise > 0:
         space, dim = env.action_spec.space, env.action_spec.shape[-1]  # bounds per env: take one row
         low, high = space.low.reshape(-1, dim)[0], space.high.reshape(-1, dim)[0]
-        actor = ActionNoise(actor, args.action_noise, low, high)
+        actor = ActionNoise(actor, args.action_noise, low, high, per=args.noise_per)
     try:
         for noise_seed in noise_seeds:
             result = evaluate(actor, env, episodes=args.episodes, seed=args.seed, noise_seed=noise_seed)
@@ -102,6 +118,7 @@ def main(argv: list[str] | None = None) -> int:
         "task": task.name,
         "episodes": args.episodes,
         "action_noise": args.action_noise,
+        "noise_per": args.noise_per,
         "episode_seeds": {"first": args.seed, "episodes": args.episodes},
         "rows": rows,
         "mean": mean,

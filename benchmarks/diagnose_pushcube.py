@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from benchmarks.common import machine_info, save_results
+from benchmarks.rollout_states import rollout_states
 
 #: PushCube's flattened state: agent qpos (9), qvel (9), tcp_pose (7), goal_pos (3), obj_pose (7)
 TCP, GOAL, CUBE = slice(18, 21), slice(25, 28), slice(28, 31)
@@ -27,30 +28,7 @@ GOAL_RADIUS = 0.1
 
 
 def play(actor, task, seed: int, limit: int) -> dict:
-    from l1flow_rl.envs import make_env
-    from l1flow_rl.envs.per_env import seeded_reset
-    from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
-    from torchrl.modules import MultiStepActorWrapper
-
-    env = make_env(task, 1, max_episode_steps=limit)
-    frames, first_success = [], None
-    try:
-        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
-            torch.manual_seed(seed)
-            td = seeded_reset(env, None, [seed])
-            executor = MultiStepActorWrapper(actor, n_steps=actor.action_steps, init_key="is_init")
-            frames.append(td["observation"][0, -1].numpy())
-            for step in range(limit):
-                td = env.step(executor(td))
-                frames.append(td["next", "observation"][0, -1].numpy())
-                if first_success is None and bool(td["next", "success"].reshape(-1)[0]):
-                    first_success = step + 1
-                if bool(td["next", "done"].reshape(-1)[0]):
-                    break
-                td = step_mdp(td)
-    finally:
-        env.close()
-    obs = np.stack(frames)
+    obs, first_success = rollout_states(actor, task, seed, noise_seed=seed, limit=limit)
     goal_dist = np.linalg.norm(obs[:, CUBE][:, :2] - obs[:, GOAL][:, :2], axis=1)
     hand_dist = np.linalg.norm(obs[:, TCP] - obs[:, CUBE], axis=1)
     at_limit = min(task.max_episode_steps, len(obs) - 1)

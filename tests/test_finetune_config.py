@@ -79,6 +79,12 @@ def test_filtered_bc_preset_builds_a_critic_free_loss_on_successful_online_episo
     loss = algorithm.build(flow, cfg.finetune)
     assert isinstance(loss, FilteredBCLoss) and loss.actor is flow and loss.rl_horizon == 8
     assert not hasattr(loss, "target_qvalue_network_params")
+    assert not loss.bc_loss.mask_padding  # trains on padded steps as its BC run did, unless asked
+    masked = compose_config(
+        ["finetune=filtered_bc", "checkpoint=bc.pt", "finetune.filtered_bc.mask_padding=true"],
+        command="finetune",
+    )
+    assert algorithm.build(flow, masked.finetune).bc_loss.mask_padding
 
 
 def test_a_fine_tune_adopts_its_starts_data_unless_the_command_line_sets_it():

@@ -28,6 +28,8 @@ class FilteredBCLoss(LossModule):
     Keyword Args:
         rl_horizon: the executed actions per chunk, read by the replay buffers' windows (default: the
             policy's ``action_steps``); nothing here depends on it.
+        mask_padding: leave the steps ``action_is_pad`` flags out of the loss (see
+            :class:`~l1flow_rl.objectives.chunk_loss.ChunkLossBase`); default False, as BC trains.
 
     Returns ``"loss_bc"`` and the L1 Flow loss's detached diagnostics.
 
@@ -44,12 +46,14 @@ class FilteredBCLoss(LossModule):
         True
     """
 
-    def __init__(self, actor_network: L1FlowActor, *, rl_horizon: int | None = None) -> None:
+    def __init__(
+        self, actor_network: L1FlowActor, *, rl_horizon: int | None = None, mask_padding: bool = False
+    ) -> None:
         if not isinstance(actor_network, L1FlowActor):
             raise TypeError(f"actor_network must be an L1FlowActor, got {type(actor_network).__name__}")
         super().__init__()
         # a child loss: the flow's parameters are this loss's, trained by the BC term
-        self.bc_loss = L1FlowLoss(actor_network)
+        self.bc_loss = L1FlowLoss(actor_network, mask_padding=mask_padding)
         self.__dict__["actor"] = actor_network  # acting follows training (shared weights)
         self.__dict__["flow"] = actor_network
         self.rl_horizon = int(rl_horizon or actor_network.policy.action_steps)

@@ -200,7 +200,9 @@ def _build_dsrl_na(flow: L1FlowActor, cfg: DictConfig) -> DSRLNALoss:
 
 
 def _build_filtered_bc(flow: L1FlowActor, cfg: DictConfig) -> FilteredBCLoss:
-    return FilteredBCLoss(flow, rl_horizon=int(cfg.rl_horizon) or None)
+    return FilteredBCLoss(
+        flow, rl_horizon=int(cfg.rl_horizon) or None, mask_padding=bool(cfg.filtered_bc.mask_padding)
+    )
 
 
 def _flow(loss) -> L1FlowActor:
