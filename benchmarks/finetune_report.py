@@ -74,7 +74,11 @@ def _control_curve(runs) -> str:
             per_step.setdefault(int(e["step"]), []).append(float(e["success_once"]))
     if not per_step:
         return "–"
-    return ", ".join(f"{k // 1000}k upd.: {sum(v) / len(v):.2f}" for k, v in sorted(per_step.items()))
+    # seeds validated at other counts (a run lengthened on resume) show apart, with how many read each
+    return ", ".join(
+        f"{k:,} upd.: {sum(v) / len(v):.2f}" + ("" if len(v) == len(runs) else f" ({len(v)} of {len(runs)})")
+        for k, v in sorted(per_step.items())
+    )
 
 
 def render_finetune_online(data: dict) -> str:
