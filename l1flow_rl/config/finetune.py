@@ -78,7 +78,10 @@ class FilteredBCSettings:
     # control pads "no motion" after the end: a false "stop here" at the threshold. PickCube's
     # fine-tuned policy then parks 2.7-4.6 cm from the goal (42 of its 47 test failures; its
     # collected successes end at a median 2.2 cm, moving at 0.077, the demonstrations at 0.8 cm):
-    # benchmarks/results/diagnose_pickcube_mixed50b.json
+    # benchmarks/results/diagnose_pickcube_mixed50b.json. Masked, with online.action_noise=0.02, the
+    # same start tests 0.64 / 0.67 / 0.57 at 100k env steps against 0.53 / 0.46 / 0.52 unmasked
+    # (finetune_online_maniskill_pickcube_mixed50b_filtered_bc_an0p02_mask_100k.json). Off by default:
+    # absolute control (Can) pads by holding the last target, a true label, and is not measured masked.
     mask_padding: bool = False
 
 
