@@ -71,10 +71,11 @@ def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
     }
     table = render_finetune_online(data)
     assert "| bc_start | 1 | 0.18 (100 episodes) |" in table
-    # a control run per seed: its mean and spread, and its update count
+    # a control run per seed: its mean and spread, its update count, and its validations at exact
+    # update counts, saying how many seeds read each (seed 0 records none here)
     assert (
-        "| continued_bc, 8,000 updates | 2 | 0.24 (0.18-0.30; 100 episodes) | 0k upd.: 0.20, 2k upd.: 0.30 |"
-        in table
+        "| continued_bc, 8,000 updates | 2 | 0.24 (0.18-0.30; 100 episodes) | "
+        "0 upd.: 0.20 (1 of 2), 2,000 upd.: 0.30 (1 of 2) |" in table
     )
     assert "| dsrl | 1 | 0.32 (0.32-0.32) | 0k: 0.18, 20k: 0.30 | 200 | 10 |" in table
     assert "dsrl: `x=1`" in table
