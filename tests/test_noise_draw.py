@@ -66,3 +66,22 @@ def test_action_noise_perturbs_every_action_inside_the_bounds_and_keeps_the_exec
     # the narrow dim is mostly pinned to its bounds; the wide one moves by about sigma
     inside = (chunk[..., 0] > -1) & (chunk[..., 0] < 1) & (clean[..., 0].abs() < 0.5)
     assert 0.3 < (chunk - clean)[..., 0][inside].std() < 0.7
+
+
+def test_chunk_noise_holds_one_offset_over_every_step_of_a_chunk():
+    from tensordict import TensorDict
+
+    from benchmarks.bench_noise_draw import ActionNoise
+    from l1flow_rl.actor import L1FlowActor
+
+    torch.manual_seed(0)
+    actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32)).eval()
+    wide = torch.tensor([100.0, 100.0])  # bounds that never clamp: the offset shows whole
+    noisy = ActionNoise(actor, sigma=0.5, low=-wide, high=wide, per="chunk")
+    obs = TensorDict({"observation": torch.randn(8, 2, 5)}, batch_size=[8])
+    torch.manual_seed(1)
+    clean = actor(obs.clone())["action_chunk"]
+    torch.manual_seed(1)
+    offset = noisy(obs.clone())["action_chunk"] - clean  # [8, H, 2]
+    torch.testing.assert_close(offset, offset[:, :1].expand_as(offset))
+    assert offset[:, 0].std() > 0.2  # and it differs between chunks
