@@ -19,13 +19,9 @@ static), and whether it was still held at the end. Failures are then put in one 
 
 from __future__ import annotations
 
-import argparse
-from collections import Counter
-
 import numpy as np
-import torch
 
-from benchmarks.common import machine_info, save_results
+from benchmarks.phase_diagnosis import diagnose
 from benchmarks.rollout_states import rollout_states
 
 #: PickCube-v1's flattened state (obs_mode=state): agent qpos (9), qvel (9), then the extras in the
@@ -71,45 +67,14 @@ def phase(row: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--checkpoints", nargs="+", required=True, help="NAME=PATH, one per policy")
-    parser.add_argument("--seed", type=int, default=100_000, help="first episode seed (test split)")
-    parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--noise-seed", type=int, default=0, help="added to each episode's seed")
-    parser.add_argument("--out", required=True)
-    args = parser.parse_args(argv)
-    named = []
-    for item in args.checkpoints:  # before any checkpoint or simulator is loaded
-        name, sep, path = item.partition("=")
-        if not sep or not name or not path:
-            parser.error(f"--checkpoints {item!r}: expected NAME=PATH")
-        named.append((name, path))
-    from l1flow_rl.evaluation.plan import task_from
-    from l1flow_rl.workspace.checkpoint import load_actor
-
-    torch.set_num_threads(1)
-    seeds = range(args.seed, args.seed + args.episodes)
-    policies = {}
-    for name, path in named:
-        actor, cfg = load_actor(path, use_ema=True)
-        task = task_from(cfg.task)
-        if task.env_id != "PickCube-v1" or task.obs_mode != "state":
-            parser.error(f"--checkpoints {name}={path}: task {task.name} is not PickCube-v1 (state)")
-        rows = [play(actor, task, int(cfg.policy.obs_horizon), s, s + args.noise_seed) for s in seeds]
-        for row in rows:
-            row["phase"] = phase(row)
-        counts = Counter(r["phase"] for r in rows)
-        policies[name] = {"checkpoint": path, "phases": dict(counts.most_common()), "episodes": rows}
-        print(name, dict(counts.most_common()))
-    data = {
-        "episode_seeds": {"first": args.seed, "episodes": args.episodes},
-        "noise_seed_offset": args.noise_seed,
-        "goal_thresh": GOAL_THRESH,
-        "policies": policies,
-        "machine": machine_info(),
-    }
-    print(f"wrote {save_results(args.out, data)}")
-    return 0
+    return diagnose(
+        argv,
+        description=__doc__.splitlines()[0],
+        env_id="PickCube-v1",
+        play=play,
+        phase=phase,
+        constants={"goal_thresh": GOAL_THRESH},
+    )
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
 """One seeded episode of a chunk actor, with the state after every step: what the failure
-diagnoses (``diagnose_pushcube``, ``diagnose_pickcube``) read positions from."""
+diagnoses (``diagnose_pushcube``, ``diagnose_pickcube``, ``diagnose_can``) read positions from."""
 
 from __future__ import annotations
 
