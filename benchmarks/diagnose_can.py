@@ -5,7 +5,8 @@ Filtered BC adds ~+11 on Can's mixed-quality start where it adds +36 on PickCube
 failures were cubes parked just outside the goal (a labelling artefact of delta control's padding),
 and Can's absolute control pads with a true label, so its failures must be read before any new arm.
 Per episode it records the can's highest lift, the first step it is lifted, the hand's closest
-approach to it, whether it is still held at the end, and when it first sits over the target bin.
+approach to it (in 3-D, and sideways with the hand's height there), how far the can was pushed,
+whether it is still held at the end, and when it first sits over the target bin.
 Failures are put in one phase each:
 
 - ``no_lift``: the can never rose ``LIFT`` above its start (a missed or never-tried grasp);
@@ -47,6 +48,8 @@ def play(actor, task, obs_horizon: int, seed: int, noise_seed: int) -> dict:
         (BIN_X[0] < can[:, 0]) & (can[:, 0] < BIN_X[1]) & (BIN_Y[0] < can[:, 1]) & (can[:, 1] < BIN_Y[1])
     )
     lifted = lift > LIFT
+    hand_xy = np.linalg.norm(hand[:, :2] - can[:, :2], axis=1)
+    closest_xy = int(hand_xy.argmin())
     return {
         "seed": seed,
         "steps": len(obs) - 1,
@@ -54,6 +57,12 @@ def play(actor, task, obs_horizon: int, seed: int, noise_seed: int) -> dict:
         "first_lift_step": int(lifted.argmax()) if lifted.any() else None,
         "max_lift": round(float(lift.max()), 3),
         "hand_dist_min": round(float(hand_dist.min()), 3),
+        # a reach that ends beside the can and one that ends above it fail differently
+        "hand_xy_dist_min": round(float(hand_xy[closest_xy]), 3),
+        "hand_height_at_xy_min": round(float(hand[closest_xy, 2] - can[closest_xy, 2]), 3),
+        # the hand pushed or toppled the can before any lift
+        "can_moved_xy": round(float(np.linalg.norm(can[-1, :2] - can[0, :2])), 3),
+        "can_start": [round(float(v), 3) for v in can[0]],
         "held_at_end": bool(hand_dist[-1] < HOLD and lift[-1] > 0.01),
         "first_over_bin_step": int(over_bin.argmax()) if over_bin.any() else None,
         "can_end": [round(float(v), 3) for v in can[-1]],

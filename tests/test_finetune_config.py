@@ -35,6 +35,19 @@ def test_presets_compose_validate_and_build_their_loss(preset, loss_cls, q_agg, 
     assert isinstance(loss, loss_cls) and loss.critic.num_critics == cfg.finetune.num_critics
 
 
+def test_the_delta_control_preset_is_filtered_bc_with_masked_padding_and_action_noise():
+    base = compose_config(["finetune=filtered_bc", "checkpoint=bc.pt"], command="finetune")
+    delta = compose_config(["finetune=filtered_bc_delta", "checkpoint=bc.pt"], command="finetune")
+    assert delta.finetune.algorithm == "filtered_bc" and delta.finetune.filtered_bc.mask_padding
+    assert delta.online.action_noise == 0.02 and base.online.action_noise == 0.0
+    assert not base.finetune.filtered_bc.mask_padding
+    # everything else is filtered_bc's: the two settings are the whole difference
+    for cfg in (base, delta):
+        cfg.finetune.filtered_bc.mask_padding = False
+        cfg.online.action_noise = 0.0
+    assert OmegaConf.to_container(delta) == OmegaConf.to_container(base)
+
+
 def test_bad_fine_tuning_settings_fail_at_config_time_naming_the_field():
     with pytest.raises(
         ConfigValidationError,
