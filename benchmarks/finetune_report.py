@@ -13,6 +13,7 @@ from __future__ import annotations
 
 __all__ = [
     "render_critic_bias",
+    "render_failure_phases",
     "render_finetune_cost",
     "render_finetune_online",
     "render_noise_authority",
@@ -247,6 +248,27 @@ def render_noise_draw(data: dict) -> str:
             *_per_start_lines(data.get("per_start")),
         ]
     )
+
+
+def render_failure_phases(data: dict) -> str:
+    """``diagnose_pickcube`` / ``diagnose_can``: per policy, how many episodes ended in each phase."""
+    seeds = data["episode_seeds"]
+    policies = data["policies"]
+    phases = ["success", *sorted({p for v in policies.values() for p in v["phases"]} - {"success"})]
+    lines = [
+        f"{seeds['episodes']} episodes from seed {seeds['first']} (the test split), each policy on the same "
+        "starts and noise seeds; each episode in the one phase it ended in (the script's docstring says "
+        "what each phase means).",
+        "",
+        "| policy | checkpoint | " + " | ".join(phases) + " |",
+        "|" + "---|" * (len(phases) + 2),
+    ]
+    for name, policy in policies.items():
+        counts = " | ".join(str(policy["phases"].get(p, 0)) for p in phases)
+        lines.append(f"| {name} | `{policy['checkpoint']}` | {counts} |")
+    if data.get("note"):
+        lines += ["", str(data["note"])]
+    return "\n".join(lines)
 
 
 def _per_start_lines(split: dict | None) -> list[str]:

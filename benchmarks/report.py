@@ -26,6 +26,7 @@ from typing import Any
 from benchmarks.export_report import render_export_latency
 from benchmarks.finetune_report import (
     render_critic_bias,
+    render_failure_phases,
     render_finetune_cost,
     render_finetune_online,
     render_finetune_shock,
@@ -591,6 +592,11 @@ GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
             r"noise_draw_.*\.json",
             "Validation figures and the sampler's noise draw",
             render_noise_draw,
+        ),
+        (
+            r"diagnose_(pickcube|can)_.*\.json",
+            "Failure anatomy: the phase each episode ended in",
+            render_failure_phases,
         ),
         (
             r"critic_bias_.*\.json",

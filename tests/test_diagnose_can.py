@@ -29,3 +29,19 @@ def test_a_checkpoint_argument_without_a_path_is_refused_before_anything_loads(t
     with pytest.raises(SystemExit):
         main(["--checkpoints", "start", "--out", str(tmp_path / "unused.json")])
     assert "expected NAME=PATH" in capsys.readouterr().err
+
+
+def test_the_report_tabulates_each_policys_phases_on_the_same_columns():
+    from benchmarks.finetune_report import render_failure_phases
+
+    data = {
+        "episode_seeds": {"first": 100000, "episodes": 3},
+        "policies": {
+            "start": {"checkpoint": "a.pt", "phases": {"no_lift": 2, "success": 1}},
+            "tuned": {"checkpoint": "b.pt", "phases": {"success": 2, "dropped": 1}},
+        },
+    }
+    text = render_failure_phases(data)
+    assert "| policy | checkpoint | success | dropped | no_lift |" in text
+    assert "| start | `a.pt` | 1 | 0 | 2 |" in text  # a phase a policy never reached reads 0
+    assert "| tuned | `b.pt` | 2 | 1 | 0 |" in text
