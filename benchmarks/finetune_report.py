@@ -251,12 +251,12 @@ def render_noise_draw(data: dict) -> str:
 
 
 def render_failure_phases(data: dict) -> str:
-    """``diagnose_pickcube`` / ``diagnose_can``: per policy, how many episodes ended in each phase."""
+    """A phase diagnosis (``benchmarks/phase_diagnosis.py``): per policy, the episodes in each phase."""
     seeds = data["episode_seeds"]
     policies = data["policies"]
     phases = ["success", *sorted({p for v in policies.values() for p in v["phases"]} - {"success"})]
     lines = [
-        f"{seeds['episodes']} episodes from seed {seeds['first']} (the test split), each policy on the same "
+        f"{seeds['episodes']} episodes from seed {seeds['first']}, each policy on the same "
         "starts and noise seeds; each episode in the one phase it ended in (the script's docstring says "
         "what each phase means).",
         "",

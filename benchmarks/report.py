@@ -594,7 +594,7 @@ GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
             render_noise_draw,
         ),
         (
-            r"diagnose_(pickcube|can)_.*\.json",
+            r"diagnose_.*\.json",
             "Failure anatomy: the phase each episode ended in",
             render_failure_phases,
         ),
