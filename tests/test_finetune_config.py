@@ -36,8 +36,11 @@ def test_presets_compose_validate_and_build_their_loss(preset, loss_cls, q_agg, 
 
 
 def test_the_delta_control_preset_is_filtered_bc_with_masked_padding_and_action_noise():
-    base = compose_config(["finetune=filtered_bc", "checkpoint=bc.pt"], command="finetune")
-    delta = compose_config(["finetune=filtered_bc_delta", "checkpoint=bc.pt"], command="finetune")
+    # one run_dir for both: the default is a timestamp, which differs when the two straddle a second
+    base = compose_config(["finetune=filtered_bc", "checkpoint=bc.pt", "run_dir=r"], command="finetune")
+    delta = compose_config(
+        ["finetune=filtered_bc_delta", "checkpoint=bc.pt", "run_dir=r"], command="finetune"
+    )
     assert delta.finetune.algorithm == "filtered_bc" and delta.finetune.filtered_bc.mask_padding
     assert delta.online.action_noise == 0.02 and base.online.action_noise == 0.0
     assert not base.finetune.filtered_bc.mask_padding
