@@ -33,6 +33,9 @@ for d, _, files in os.walk(os.path.join(site, "robosuite/models/assets")):
         if not keep:
             os.remove(p)
 PY
+# zarr (and its codecs) is imported only by the Diffusion Policy zarr format, torchrl's examples never:
+# dropped so that the tree (22.4 MB by the twenty-fourth session) and the bundle stay under 64 MiB
+(cd $B/site && rm -rf numcodecs* zarr* donfig* google_crc32c* sota-implementations)
 tar -cf - -C $B/site . | xz -6 -T2 > .gpu/core312.tar.xz
 .venv/bin/python - <<'PY'
 import torch
