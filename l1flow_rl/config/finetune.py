@@ -140,11 +140,6 @@ class OnlineConfig:
     # solves 55 of 100 starts under 8 draws of its own sampler noise; std 0.02 reaches 18 of them
     # (benchmarks/results/noise_draw_maniskill_pickcube_mixed50b*.json). 0: the policy's own noise only.
     action_noise: float = 0.0
-    # >0: draw windows (demonstrations and online) in proportion to 1 / p(success | start), p the success
-    # fraction of the k collected episodes whose starts (task.start_dims) lie nearest. Can's collected
-    # success falls from 0.50 near the bin's centre to 0.24 at far starts, and filtered BC gained only near
-    # it (benchmarks/results/diagnose_can_mixed30c*.json); see l1flow_rl/data/start_rarity.py. 0: uniform.
-    start_rarity_k: int = 0
 
 
 def round_frames(cfg) -> int:
@@ -177,20 +172,6 @@ def _check_online(cfg, command: str) -> list[str]:
         problems.append(f"online.offline_fraction={on.offline_fraction}: expected a value in [0, 1)")
     if on.action_noise < 0:
         problems.append(f"online.action_noise={on.action_noise}: expected a std >= 0")
-    if on.get("start_rarity_k", 0) < 0:
-        problems.append(
-            f"online.start_rarity_k={on.start_rarity_k}: expected 0 (uniform) or a neighbour count"
-        )
-    elif on.get("start_rarity_k", 0) > 0 and not cfg.task.get("start_dims"):
-        problems.append(
-            f"online.start_rarity_k={on.start_rarity_k} weights windows by their episode's start, but task "
-            f"{cfg.task.name!r} names no task.start_dims (the state dimensions that place a start)"
-        )
-    elif on.get("start_rarity_k", 0) > 0 and on.seed_with_offline:
-        problems.append(
-            f"online.start_rarity_k={on.start_rarity_k} estimates success from the collected episodes alone, "
-            "but online.seed_with_offline=true stores them in one buffer with the demonstrations"
-        )
     if on.warmup_steps < 0 or on.updates_per_step < 0:
         problems.append(
             f"online.warmup_steps={on.warmup_steps}, online.updates_per_step={on.updates_per_step}: "

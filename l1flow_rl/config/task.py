@@ -38,9 +38,6 @@ class TaskConfig:
     state_keys: list[str] = field(default_factory=list)
     # Cameras that become image entries (uint8 [3, H, W] each); empty means the simulator's default.
     cameras: list[str] = field(default_factory=list)
-    # Dimensions of the state observation that place an episode's randomised start (robosuite Can: the
-    # can's x, y); read only by online.start_rarity_k. Empty: the task names none.
-    start_dims: list[int] = field(default_factory=list)
     env: dict = field(default_factory=dict)  # simulator-specific env options
     expert: dict = field(default_factory=dict)  # demonstration-source options (l1flow_rl.experts)
 

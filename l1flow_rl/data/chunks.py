@@ -167,10 +167,6 @@ class ChunkWindowSampler(Sampler):
     def __init__(self, layout: ChunkLayout) -> None:
         self.layout = layout
         self._cache: tuple[Any, Tensor, Tensor, Tensor] | None = None
-        #: anchors drawn in proportion to these weights instead of uniformly, where set (a
-        #: :class:`~l1flow_rl.data.start_rarity.StartRarity`: ``online.start_rarity_k``)
-        self.weighting: Any = None
-        self._weights: tuple[Any, Tensor] | None = None
 
     def _episode_table(self, storage: Storage) -> tuple[Tensor, Tensor, Tensor]:
         """(start row, end row) per stored row, and the valid anchor rows; recomputed when the storage
@@ -243,12 +239,7 @@ class ChunkWindowSampler(Sampler):
         if anchors.numel() == 0:
             what = "ended in a terminal state" if self.layout.terminated_episodes_only else "is long enough"
             raise EpisodeDataError(f"{self.layout.source}: no episode {what} to give a window")
-        if self.weighting is None:
-            pick = torch.randint(anchors.numel(), (batch_size,), generator=self._rng)
-        else:
-            pick = torch.multinomial(
-                self._anchor_weights(storage), batch_size, replacement=True, generator=self._rng
-            )
+        pick = torch.randint(anchors.numel(), (batch_size,), generator=self._rng)
         t = anchors[pick]
         t_start, t_last = start[t].unsqueeze(1), end[t].unsqueeze(1) - 1
         to, h = self.layout.obs_horizon, self.layout.pred_horizon
@@ -256,19 +247,8 @@ class ChunkWindowSampler(Sampler):
         act_rows = (t.unsqueeze(1) + torch.arange(1 - to, h - to + 1)).clamp(min=t_start, max=t_last)
         return torch.cat([obs_rows, act_rows, t_start, t_last + 1], dim=1), {}
 
-    def _anchor_weights(self, storage: Storage) -> Tensor:
-        """Each anchor's weight (its episode's), recomputed when this storage or the weighting changes."""
-        key = (self._cache[0] if self._cache is not None else None, self.weighting.revision)
-        if self._weights is None or self._weights[0] != key:
-            start, _, anchors = self._episode_table(storage)
-            episodes, which = torch.unique(start[anchors], return_inverse=True)
-            per_episode = self.weighting.weights(storage.get(episodes), source=self.layout.source)
-            self._weights = (key, per_episode[which])
-        return self._weights[1]
-
     def _empty(self) -> None:
         self._cache = None
-        self._weights = None
 
     def state_dict(self) -> dict[str, Any]:
         return {}  # stateless: the randomness lives in the buffer's generator

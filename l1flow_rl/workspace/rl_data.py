@@ -24,7 +24,6 @@ from l1flow_rl.config.finetune import REWARD_KEYS, round_frames
 from l1flow_rl.data import EpisodeDataError, make_chunk_buffer
 from l1flow_rl.data.episodes import episode_bounds
 from l1flow_rl.data.online import CORE_KEYS
-from l1flow_rl.data.start_rarity import StartRarity
 from l1flow_rl.errors import CheckpointReadError
 from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
 from l1flow_rl.workspace.dataset import chunk_padding
@@ -171,13 +170,6 @@ class RLBuffers:
             self.offline = make_chunk_buffer(episodes, seed=seed, capacity=n_demo, **common)
             self.online = online_buffer()
             self.mixed = self.online
-        if int(ocfg.get("start_rarity_k", 0)) > 0:  # config-checked: two buffers (not seed_with_offline)
-            # one estimate from the collected episodes weights both buffers' windows
-            rarity = StartRarity(
-                self.online.storage, dims=list(cfg.task.start_dims), k=int(ocfg.start_rarity_k)
-            )
-            self.offline.sampler.weighting = rarity
-            self.online.sampler.weighting = rarity
         self.batch_size = int(cfg.finetune.batch_size)
         #: demonstration episodes whose windows the batches draw from, of all given
         self.demo_episodes = {"kept": n_episodes(episodes), "given": n_episodes(episodes)}
