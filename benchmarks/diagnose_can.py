@@ -28,12 +28,24 @@ from benchmarks.rollout_states import rollout_states
 #: The Can task's state (``state_keys: [object, robot0_eef_pos, robot0_eef_quat,
 #: robot0_gripper_qpos]``): object = [Can_to_robot0_eef_pos 3, ..._quat 4, Can_pos 3, Can_quat 4].
 CAN, EEF = slice(7, 10), slice(14, 17)
+FINGERS = slice(21, 23)  # robot0_gripper_qpos: the two finger joints (+, -); their difference is the opening
 STATE_DIM = 23
 #: PickPlace's bin for the can (bin id 3): x in bin2_x + [0, 0.39/2], y in bin2_y + [0, 0.49/2],
 #: read from robosuite's ``not_in_bin`` with its defaults bin2_pos (0.1, 0.28, 0.8), bin_size (0.39, 0.49)
 BIN_X, BIN_Y = (0.1, 0.295), (0.28, 0.525)
 LIFT = 0.03
 HOLD = 0.04  # hand-to-can centre distance that counts as holding (the can's radius is ~0.03)
+
+
+def first_close(obs: np.ndarray) -> tuple[int | None, list[float] | None]:
+    """The first step the fingers have closed by 5 mm from their widest so far (the first grasp), and
+    the hand's x, y offset from the can there (None, None: they never closed)."""
+    opening = obs[:, FINGERS][:, 0] - obs[:, FINGERS][:, 1]
+    closed = np.flatnonzero(opening < np.maximum.accumulate(opening) - 0.005)
+    if not closed.size:
+        return None, None
+    step = int(closed[0])
+    return step, [round(float(v), 4) for v in obs[step, EEF][:2] - obs[step, CAN][:2]]
 
 
 def play(actor, task, obs_horizon: int, seed: int, noise_seed: int) -> dict:
@@ -50,6 +62,7 @@ def play(actor, task, obs_horizon: int, seed: int, noise_seed: int) -> dict:
     lifted = lift > LIFT
     hand_xy = np.linalg.norm(hand[:, :2] - can[:, :2], axis=1)
     closest_xy = int(hand_xy.argmin())
+    close_step, offset = first_close(obs)
     return {
         "seed": seed,
         "steps": len(obs) - 1,
@@ -63,6 +76,10 @@ def play(actor, task, obs_horizon: int, seed: int, noise_seed: int) -> dict:
         # the hand pushed or toppled the can before any lift
         "can_moved_xy": round(float(np.linalg.norm(can[-1, :2] - can[0, :2])), 3),
         "can_start": [round(float(v), 3) for v in can[0]],
+        # where the hand was, sideways from the can, when the fingers first closed: a miss that points
+        # toward the start bin's centre is a grasp pulled toward the demonstrations' average start
+        "close_step": close_step,
+        "hand_offset_xy_at_close": offset,
         "held_at_end": bool(hand_dist[-1] < HOLD and lift[-1] > 0.01),
         "first_over_bin_step": int(over_bin.argmax()) if over_bin.any() else None,
         "can_end": [round(float(v), 3) for v in can[-1]],

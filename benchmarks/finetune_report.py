@@ -126,6 +126,8 @@ def render_finetune_online(data: dict) -> str:
             "Budget overrides of the presets: "
             + "; ".join(f"{a}: `{' '.join(o)}`" for a, o in overrides.items()),
         ]
+    if data.get("note"):  # what became of the arm, added by hand after the run (e.g. a setting removed)
+        lines += ["", str(data["note"])]
     return "\n".join(lines)
 
 

@@ -1,8 +1,9 @@
 """The Can failure diagnosis puts each episode in exactly one phase, from what its states show."""
 
+import numpy as np
 import pytest
 
-from benchmarks.diagnose_can import main, phase
+from benchmarks.diagnose_can import first_close, main, phase
 
 
 def _row(**kw):
@@ -23,6 +24,26 @@ def _row(**kw):
 )
 def test_each_episode_lands_in_one_phase(row, expected):
     assert phase(row) == expected
+
+
+def test_the_first_grasp_is_where_the_fingers_first_close_by_5mm_with_the_hand_offset_there():
+    states = np.zeros((6, 23))
+    states[:, 7:10] = [0.1, -0.4, 0.86]  # the can
+    states[:, 14:17] = [
+        [0.0, -0.1, 1.0],
+        [0.05, -0.2, 0.95],
+        [0.08, -0.3, 0.9],
+        [0.09, -0.36, 0.87],
+        [0.09, -0.36, 0.87],
+        [0.09, -0.36, 0.87],
+    ]
+    # finger joints (+, -): open 4 cm each, closing by 2 mm (noise, not a grasp), then by 1 cm at step 3
+    states[:, 21] = [0.04, 0.04, 0.039, 0.035, 0.03, 0.03]
+    states[:, 22] = [-0.04, -0.04, -0.04, -0.035, -0.03, -0.03]
+    step, offset = first_close(states)
+    assert step == 3 and offset == [-0.01, 0.04]  # 1 cm short in x, 4 cm on the start side in y
+    states[:, 21], states[:, 22] = 0.04, -0.04
+    assert first_close(states) == (None, None)  # never closed
 
 
 def test_a_checkpoint_argument_without_a_path_is_refused_before_anything_loads(tmp_path, capsys):
