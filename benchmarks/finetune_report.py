@@ -126,8 +126,6 @@ def render_finetune_online(data: dict) -> str:
             "Budget overrides of the presets: "
             + "; ".join(f"{a}: `{' '.join(o)}`" for a, o in overrides.items()),
         ]
-    if data.get("note"):  # what became of the arm, added by hand after the run (e.g. a setting removed)
-        lines += ["", str(data["note"])]
     return "\n".join(lines)
 
 
@@ -268,8 +266,6 @@ def render_failure_phases(data: dict) -> str:
     for name, policy in policies.items():
         counts = " | ".join(str(policy["phases"].get(p, 0)) for p in phases)
         lines.append(f"| {name} | `{policy['checkpoint']}` | {counts} |")
-    if data.get("note"):
-        lines += ["", str(data["note"])]
     return "\n".join(lines)
 
 

@@ -446,7 +446,7 @@ def render_train_throughput(d: dict) -> str:
     table = _table(
         ["network", "setting", "trainer samples/s", "bare update samples/s", "trainer / bare"], rows
     )
-    return table + (f"\n\n{d['note']}" if d.get("note") else "")
+    return table
 
 
 def render_training_runs(d: dict) -> str:
@@ -468,7 +468,7 @@ def render_training_runs(d: dict) -> str:
         ["task", "method", "demos", "steps", "wall s", "success_once", "95 % interval", "episodes", "seeds"],
         rows,
     )
-    return table + (f"\n\n{d['note']}" if d.get("note") else "")
+    return table
 
 
 def render_pusht_modes(d: dict) -> str:
@@ -641,6 +641,8 @@ def _file_section(path: Path, data: dict, title: str, render: Callable[[dict], s
         body = render(data)
     except (KeyError, TypeError, ValueError) as err:  # an older layout of the file
         body = f"Not rendered: an older layout of this file ({err!r}); re-run its script."
+    if isinstance(data, dict) and data.get("note"):  # a file's own words after its table, whatever renders it
+        body += f"\n\n{data['note']}"
     parts = [f"### {title} (`{path.name}`)", ""]
     parts += [f"Source: [`{path.name}`]({_link(path, doc)}). Machine: {_machine(data)}.", "", body, ""]
     plot = path.with_suffix(".png")
