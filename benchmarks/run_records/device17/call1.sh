@@ -28,12 +28,12 @@ run() { name=$1; shift; timeout -k 20 -s TERM $T python3 -m l1flow_rl.cli finetu
 mkdir -p /tmp/r
 nvidia-smi --query-gpu=name,memory.used --format=csv
 # ARM and EXTRA (empty in the call that ran) let a later call run another arm through this script
-run qc${ARM}_seed0 finetune=qc $online seed=0 $EXTRA &
-run qc${ARM}_seed1 finetune=qc $online seed=1 $EXTRA &
+run qc${ARM}_seed0 finetune=qc $online seed=0 $EXTRA & p0=$!
+run qc${ARM}_seed1 finetune=qc $online seed=1 $EXTRA & p1=$!
 if [ -z "$ARM" ]; then
   timeout -k 5 150 python3 -m pytest tests/test_cuda.py -q -p no:cacheprovider > /tmp/r_test_cuda.log 2>&1; echo "test_cuda exit $?"
 fi
-wait
+wait $p0 $p1  # a bare wait would also wait for the tee that logs this call (bash >= 5.1): device25
 [ -f /tmp/r_test_cuda.log ] && tail -5 /tmp/r_test_cuda.log
 for f in /tmp/r_qc*.log; do echo "== $f"; tr '\r' '\n' < $f | grep -a -E "validation|test|success|Error|error|updates/s" | tail -12; done
 tar -C /tmp -cf $OUT/runs.tar --exclude=checkpoints --exclude='*.memmap' r $(cd /tmp && ls r_*.log)
