@@ -11,7 +11,7 @@ __all__ = ["PADDING_RULES", "QUALITIES", "QUALITY_LABELS", "DataConfig", "DemosC
 #: what ``demos.quality`` takes: expert demonstrations, or a labelled mix (l1flow_rl.experts.quality)
 QUALITIES = ("expert", "mixed")
 #: the per-episode labels of a mixed set, which ``data.labels`` selects from
-QUALITY_LABELS = ("expert", "noisy", "recovered", "failed")
+QUALITY_LABELS = ("expert", "noisy", "recovered", "failed", "shifted")
 
 
 @dataclass
@@ -23,6 +23,9 @@ class DemosConfig:
     max_consecutive_failures: int = 50
     seed: int = 0
     quality: str = "expert"  # QUALITIES
+    # Shifted replays of the successful episodes to fresh scenes, played in the simulator; the
+    # successful ones join the set labelled "shifted" (l1flow_rl.experts.object_shift). 0: none.
+    shifted_replays: int = 0
 
 
 #: how far chunks reach past an episode's ends (see l1flow_rl.data.chunks and

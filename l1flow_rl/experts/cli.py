@@ -22,6 +22,11 @@ def demo_options(cfg: DictConfig, task) -> dict:
             f"demos.quality={demos['quality']!r}: the {spec.simulator} expert makes expert demonstrations "
             "only (mixed quality: robosuite and ManiSkill tasks)"
         )
+    if demos.get("shifted_replays", 0) and "shifted_replays" not in spec.options:
+        raise DemoGenerationError(
+            f"demos.shifted_replays={demos['shifted_replays']}: the {spec.simulator} expert makes no shifted "
+            "replays (robosuite tasks with absolute control)"
+        )
     return {k: v for k, v in demos.items() if k not in ("num", "seed") and k in spec.options}
 
 

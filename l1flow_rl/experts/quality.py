@@ -14,6 +14,8 @@ Labels (:data:`QUALITY_LABELS`):
         expert's grasp.
     failed: an episode that does not succeed (by design, a ``drop``: the gripper opens during the
         carry; or a noisy / recovered episode that did not make it). Its rewards say so.
+    shifted: a successful episode replayed with its approach moved to another scene's object
+        (``demos.shifted_replays``, :mod:`l1flow_rl.experts.object_shift`); only successes are kept.
 """
 
 from __future__ import annotations

@@ -102,6 +102,12 @@ class RobomimicWriter:
         """robomimic's filter key ``mask/<name>`` (e.g. ``train``/``valid``)."""
         self._file.require_group("mask").create_dataset(name, data=np.array(demos, dtype="S"))
 
+    def set_data_attr(self, name: str, value: str | int | float) -> None:
+        """An attribute of the file's ``data`` group (e.g. how its episodes were made)."""
+        if name in ("env_args", "total"):
+            raise ValueError(f"data attribute {name!r} is the writer's own")
+        self._data.attrs[name] = value
+
     def close(self) -> Path:
         """Finish the file and give it its final name."""
         if self._file is None:

@@ -12,6 +12,6 @@ EXPERT = register_expert(
         make="l1flow_rl.experts.robosuite.demos:ensure_robosuite_demos",
         description="scripted pick-and-place on privileged state (randomised speed, grasp offset, waypoints)",
         env_ids=("Lift", "Stack", "PickPlaceCan", "NutAssemblySquare", "ToolHang"),
-        options=("workers", "max_consecutive_failures", "quality", "progress"),
+        options=("workers", "max_consecutive_failures", "quality", "shifted_replays", "progress"),
     )
 )

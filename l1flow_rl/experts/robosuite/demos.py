@@ -36,15 +36,21 @@ __all__ = ["dataset_path", "ensure_robosuite_demos", "replay_actions", "run_epis
 
 
 def dataset_path(
-    task: TaskConfig, num: int, data_dir: str | os.PathLike, seed: int = 0, quality: str = "expert"
+    task: TaskConfig,
+    num: int,
+    data_dir: str | os.PathLike,
+    seed: int = 0,
+    quality: str = "expert",
+    shifted_replays: int = 0,
 ) -> Path:
     views = "state" if task.obs_mode == "state" else "+".join(task.cameras) + f"{task.image_size}"
     mix = "" if quality == "expert" else f".{quality}"
+    shift = f".shift{shifted_replays}" if shifted_replays else ""
     return (
         Path(data_dir)
         / "robosuite"
         / task.env_id
-        / f"{task.env_id}.{task.control}.{views}.seed{seed}.n{num}{mix}.hdf5"
+        / f"{task.env_id}.{task.control}.{views}.seed{seed}.n{num}{mix}{shift}.hdf5"
     )
 
 
@@ -249,6 +255,7 @@ def ensure_robosuite_demos(
     workers: int | None = None,
     max_consecutive_failures: int = 50,
     quality: str = "expert",
+    shifted_replays: int = 0,
     progress: bool = True,
 ) -> Path:
     """The robomimic file of ``num`` scripted demonstrations of ``task`` under ``data_dir`` (made
@@ -256,7 +263,10 @@ def ensure_robosuite_demos(
 
     ``quality="mixed"``: ``num`` episodes of mixed quality instead (see
     :mod:`l1flow_rl.experts.quality`), each demo's label in its ``quality`` attribute and in
-    robomimic's filter keys ``mask/<label>`` (``mask/train`` holds them all)."""
+    robomimic's filter keys ``mask/<label>`` (``mask/train`` holds them all).
+
+    ``shifted_replays=k``: those episodes, then the successful ones of ``k`` shifted replays of them
+    (:mod:`l1flow_rl.experts.robosuite.shifted`), labelled ``shifted``."""
     # optional dependency: the writer imports h5py
     from l1flow_rl.data.formats.robomimic_writer import RobomimicWriter
 
@@ -271,12 +281,29 @@ def ensure_robosuite_demos(
             "set control: absolute"
         )
     check_quality(quality)
-    target = dataset_path(task, num, data_dir, seed, quality)
+    target = dataset_path(task, num, data_dir, seed, quality, shifted_replays)
     if target.is_file():
         return target
     workers = workers or min(2, os.cpu_count() or 1)
     state_task = dataclasses.replace(task, obs_mode="state", cameras=[])
-    low_dim = dataset_path(state_task, num, data_dir, seed, quality)
+    low_dim = dataset_path(state_task, num, data_dir, seed, quality, shifted_replays)
+    if shifted_replays and not low_dim.is_file():
+        # optional dependency: the module imports h5py
+        from l1flow_rl.experts.robosuite.shifted import add_shifted_replays
+
+        base = ensure_robosuite_demos(
+            state_task,
+            num,
+            data_dir,
+            seed=seed,
+            workers=workers,
+            max_consecutive_failures=max_consecutive_failures,
+            quality=quality,
+            progress=progress,
+        )
+        add_shifted_replays(
+            state_task, base, low_dim, shifted_replays, seed=seed, workers=workers, progress=progress
+        )
     if not low_dim.is_file():
         demos, stats = generate(
             state_task, num, seed, workers=workers, max_failures=max_consecutive_failures, progress=progress

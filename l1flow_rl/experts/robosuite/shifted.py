@@ -1,0 +1,176 @@
+"""Shifted replays (``demos.shifted_replays``): new robosuite episodes made from a file's successful
+ones by moving their approach and grasp to the object's position in a fresh scene
+(:mod:`l1flow_rl.experts.object_shift`) and playing them open loop in the simulator; the played
+episodes that succeed join the file, labelled ``shifted``.
+
+Why: a 30-episode mixed Can set starts 3 of its episodes in the start bin's far quartile, and a policy
+trained on it closes its grasp pulled toward the bin's centre there; BC on 100 episodes (22 far
+starts) has no pull (``benchmarks/results/diagnose_can_mixed30c_grasp.json``). Each attempt costs one
+episode of env steps, counted in the file's ``shifted_replays`` attribute.
+
+Attempt ``i`` resets the scene from seed ``SHIFT_SEEDS + 100_000 * seed + i``: apart from the
+demonstration (0 on), validation (10,000 on), test (100,000 on) and online (1,000,000 on) seeds.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from l1flow_rl.config import TaskConfig
+from l1flow_rl.envs.robosuite import sim
+from l1flow_rl.envs.robosuite.pool import worker_pool
+from l1flow_rl.experts.object_shift import shift_actions
+from l1flow_rl.experts.quality import GripperLayout
+from l1flow_rl.experts.registry import DemoGenerationError
+from l1flow_rl.experts.robosuite.scripted import CLOSED, OPEN
+
+__all__ = ["SHIFTED_OBJECTS", "SHIFT_SEEDS", "add_shifted_replays", "object_position", "shifted_replay"]
+
+SHIFT_SEEDS = 50_000_000
+MAX_ATTEMPTS = 100_000  # attempts per seed (the seed ranges of two file seeds must not meet)
+#: steps the last action is held after a replay's actions end: a released can is still falling
+SETTLE_STEPS = 40
+#: the grasped object of each task whose episodes can be shifted: translation-only shifts hold for a
+#: can (round: any yaw grasps alike); a nut or a tool would need its yaw transformed too
+SHIFTED_OBJECTS: dict[str, Callable] = {"PickPlaceCan": lambda env: env.obj_body_id["Can"]}
+_GRIP = GripperLayout("absolute", open=OPEN, closed=CLOSED)
+
+
+def object_position(env, env_id: str) -> np.ndarray:
+    return np.array(env.sim.data.body_xpos[SHIFTED_OBJECTS[env_id](env)], dtype=np.float64)
+
+
+def shifted_replay(env, task: TaskConfig, source_state: np.ndarray, actions: np.ndarray, seed: int) -> dict:
+    """The episode recorded from ``source_state`` (its first MuJoCo state) with ``actions``, shifted
+    to the object's position in the scene of ``seed`` and played there; the robomimic demo dict
+    (``attrs``: success and the x, y offset)."""
+    # optional dependency: the recorder lives with the scripted demonstrations
+    from l1flow_rl.experts.robosuite.demos import _record
+
+    sim.restore_state(env, source_state)
+    source = object_position(env, task.env_id)
+    sim.seed_episode(env, seed)
+    raw = env.reset()  # reset's own observation: _record's first step needs it (see its docstring)
+    offset = (object_position(env, task.env_id) - source)[:2]
+    played = shift_actions(actions, offset, _GRIP)
+    queue = iter(np.concatenate([played, np.repeat(played[-1:], SETTLE_STEPS, 0)]))
+    extra = int(np.random.default_rng([seed, 8]).integers(1, 4))
+    demo = _record(env, raw, seed, lambda: next(queue, None), lambda: False, task.max_episode_steps, extra)
+    demo["attrs"] = {**demo["attrs"], "offset_xy": offset.tolist()}
+    return demo
+
+
+_WORKER: dict = {}
+
+
+def _worker_init(task: TaskConfig) -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    _WORKER["task"] = task
+    _WORKER["env"] = sim.make_from_env_args(sim.env_args_for_task(task, cameras=[]), source=task.name)
+
+
+def _worker_replay(
+    index: int, source: str, state: np.ndarray, actions: np.ndarray, seed: int
+) -> tuple[int, dict]:
+    demo = shifted_replay(_WORKER["env"], _WORKER["task"], state, actions, seed)
+    demo["attrs"]["source_demo"] = source
+    return index, demo
+
+
+def _read_demo(group) -> dict:
+    demo = {k: group[k][()] for k in ("states", "actions", "rewards", "dones")}
+    for sub in ("obs", "next_obs"):
+        if sub in group:
+            demo[sub] = {k: group[sub][k][()] for k in group[sub]}
+    attrs = dict(group.attrs)
+    demo["model_file"] = attrs.pop("model_file")
+    attrs.pop("num_samples", None)
+    demo["attrs"] = attrs
+    return demo
+
+
+def add_shifted_replays(
+    task: TaskConfig,
+    base: Path,
+    target: Path,
+    attempts: int,
+    *,
+    seed: int = 0,
+    workers: int = 2,
+    progress: bool = True,
+) -> Path:
+    """``target``: ``base``'s episodes, then the successful ones of ``attempts`` shifted replays of
+    its successful episodes (each attempt's source drawn uniformly by ``seed``), labelled ``shifted``
+    (``mask/shifted``; every earlier mask kept). The file's ``data`` attribute ``shifted_replays``
+    holds what they cost: attempts, successes, env steps of every attempt, seconds."""
+    # optional dependencies: h5py (robomimic files), tqdm (the app extra's progress bars)
+    import h5py
+    from tqdm import tqdm
+
+    from l1flow_rl.data.formats.robomimic_writer import RobomimicWriter
+
+    if task.env_id not in SHIFTED_OBJECTS:
+        raise DemoGenerationError(
+            f"demos.shifted_replays={attempts}: task {task.name!r} ({task.env_id}) names no object to "
+            f"shift episodes to (tasks that do: {sorted(SHIFTED_OBJECTS)})"
+        )
+    if not 0 < attempts <= MAX_ATTEMPTS:
+        raise DemoGenerationError(f"demos.shifted_replays={attempts}: expected 1 to {MAX_ATTEMPTS} attempts")
+    with h5py.File(base, "r") as h5:
+        names = sorted(h5["data"], key=lambda n: int(n.rsplit("_", 1)[1]))
+        demos = [_read_demo(h5["data"][n]) for n in names]
+        masks = {k: [m.decode() for m in h5["mask"][k][()]] for k in h5.get("mask", {})}
+        env_args = json.loads(h5["data"].attrs["env_args"])
+    sources = [i for i, d in enumerate(demos) if d["attrs"].get("success", True) and d["rewards"].max() > 0]
+    if not sources:
+        raise DemoGenerationError(f"{base}: no successful episode to make shifted replays from")
+    rng = np.random.default_rng([seed, 13])
+    jobs = []
+    for i in range(attempts):
+        k = sources[int(rng.integers(len(sources)))]
+        jobs.append(
+            (i, names[k], demos[k]["states"][0], demos[k]["actions"], SHIFT_SEEDS + 100_000 * seed + i)
+        )
+    state_task = dataclasses.replace(task, obs_mode="state", cameras=[])
+    played: list[dict | None] = [None] * attempts
+    start = time.perf_counter()
+    with worker_pool(workers, _worker_init, (state_task,)) as pool:
+        futures = [pool.submit(_worker_replay, *job) for job in jobs]
+        for fut in tqdm(
+            cf.as_completed(futures), total=attempts, desc="shifted replays", disable=not progress
+        ):
+            i, demo = fut.result()
+            played[i] = demo
+    kept = [d for d in played if d["attrs"]["success"]]
+    stats = {
+        "attempts": attempts,
+        "successes": len(kept),
+        "env_steps": int(sum(len(d["actions"]) for d in played)),
+        "seconds": round(time.perf_counter() - start, 1),
+        "seeds_from": SHIFT_SEEDS + 100_000 * seed,
+        "source_episodes": len(sources),
+    }
+    with RobomimicWriter(target, env_args) as writer:
+        for demo in demos:
+            writer.add(demo)
+        added = [writer.add({**d, "attrs": {**d["attrs"], "quality": "shifted"}}) for d in kept]
+        masks["train"] = [*masks.get("train", names), *added]
+        masks["shifted"] = [*masks.get("shifted", []), *added]
+        for name, members in masks.items():
+            writer.add_mask(name, members)
+        writer.set_data_attr("shifted_replays", json.dumps(stats))
+    if progress:
+        print(
+            f"{task.env_id}: {len(kept)} of {attempts} shifted replays succeed ({stats['env_steps']} env "
+            f"steps, {stats['seconds']:.0f} s)"
+        )
+    return target

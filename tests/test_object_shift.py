@@ -1,0 +1,104 @@
+"""Object-centric shifts of absolute-control episodes (demos.shifted_replays): the weights, the
+shifted actions, their errors, and a real robosuite Can file grown by shifted replays."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from l1flow_rl.config import load_task_config
+from l1flow_rl.experts.object_shift import final_grasp, shift_actions, shift_weights
+from l1flow_rl.experts.quality import GripperLayout
+
+GRIP = GripperLayout("absolute", open=-1.0, closed=1.0)
+
+
+def _episode(gripper: list[float]) -> np.ndarray:
+    actions = np.zeros((len(gripper), 7))
+    actions[:, :3] = np.arange(len(gripper))[:, None] * 0.01
+    actions[:, -1] = gripper
+    return actions
+
+
+def test_the_final_grasp_is_the_last_closed_run_and_its_release():
+    # open 0-3, a false grasp 4-5, open 6-7, the grasp 8-13, released at 14
+    actions = _episode([-1] * 4 + [1] * 2 + [-1] * 2 + [1] * 6 + [-1] * 3)
+    assert final_grasp(actions, GRIP) == (8, 14)
+    assert final_grasp(_episode([-1, -1, 1, 1]), GRIP) == (2, 4)  # never released: the end
+    with pytest.raises(ValueError, match="never closes the gripper"):
+        final_grasp(_episode([-1] * 5), GRIP)
+
+
+def test_the_weights_follow_the_object_until_the_lift_then_fade_to_the_release():
+    actions = _episode([-1] * 4 + [1] * 10 + [-1] * 3)  # grasp 4-13, released at 14
+    w = shift_weights(actions, GRIP, hold=2)
+    assert np.all(w[:6] == 1.0)  # the approach, the close and `hold` steps of the lift
+    assert np.all(np.diff(w[6:14]) < 0) and w[13] > 0  # fading during the carry
+    assert np.all(w[14:] == 0.0)  # the release and after: the recorded place
+    assert w.shape == (17,)
+    with pytest.raises(ValueError, match="hold=-1"):
+        shift_weights(actions, GRIP, hold=-1)
+
+
+def test_shifted_actions_move_only_the_position_targets_by_the_weighted_offset():
+    actions = _episode([-1] * 4 + [1] * 10 + [-1] * 3)
+    actions[:, 3:6] = [0.1, -0.2, 0.3]
+    out = shift_actions(actions, np.array([0.05, -0.02]), GRIP, hold=2)
+    w = shift_weights(actions, GRIP, hold=2)
+    np.testing.assert_allclose(out[:, 0] - actions[:, 0], 0.05 * w)
+    np.testing.assert_allclose(out[:, 1] - actions[:, 1], -0.02 * w)
+    np.testing.assert_array_equal(out[:, 2:], actions[:, 2:])  # z, rotation and gripper untouched
+    assert out is not actions and np.all(actions[:, 0] == np.arange(17) * 0.01)
+    with pytest.raises(ValueError, match="shape \\(4,\\)"):
+        shift_actions(actions, np.zeros(4), GRIP)
+    with pytest.raises(ValueError, match="control is 'delta'"):
+        shift_actions(actions, np.zeros(2), GripperLayout("delta", open=-1.0, closed=1.0))
+
+
+@pytest.mark.robosuite
+def test_shifted_replays_grow_a_can_file_with_successes_labelled_shifted(tmp_path):
+    pytest.importorskip("robosuite")
+    from l1flow_rl.data import load_episodes
+    from l1flow_rl.experts import ensure_demos
+    from l1flow_rl.experts.robosuite.shifted import SHIFT_SEEDS
+
+    task = load_task_config("robosuite_can")
+    path = ensure_demos(task, 2, tmp_path, shifted_replays=4, workers=1, progress=False)
+    assert path.name.endswith(".n2.shift4.hdf5")
+    with h5py.File(path, "r") as f:
+        import json
+
+        stats = json.loads(f["data"].attrs["shifted_replays"])
+        names = sorted(f["data"], key=lambda n: int(n.split("_")[1]))
+        shifted = sorted(m.decode() for m in f["mask"]["shifted"][()])
+        assert stats["attempts"] == 4 and stats["source_episodes"] == 2 and stats["seeds_from"] == SHIFT_SEEDS
+        assert len(names) == 2 + stats["successes"] and shifted == names[2:]
+        assert sorted(m.decode() for m in f["mask"]["train"][()]) == sorted(names)
+        # each attempt is one episode of env steps, failures included
+        assert stats["env_steps"] >= sum(f["data"][n].attrs["num_samples"] for n in shifted)
+        assert stats["successes"] >= 3  # measured: 194 of 200 on the mixed-30 set
+        for n in shifted:
+            g = f["data"][n]
+            assert g.attrs["quality"] == "shifted" and g.attrs["success"]
+            assert g.attrs["source_demo"] in names[:2] and g["rewards"][()].max() > 0
+            assert np.linalg.norm(g.attrs["offset_xy"]) > 0
+            assert g.attrs["seed"] >= SHIFT_SEEDS
+        # the scene is another one: the first stored states differ from the source's
+        source = f["data"][shifted[0]].attrs["source_demo"]
+        assert not np.allclose(f["data"][shifted[0]]["states"][0], f["data"][source]["states"][0])
+    eps = load_episodes(path, labels=["shifted"], state_keys=list(task.state_keys), image_key=None)
+    assert int(eps["episode"].unique().numel()) == stats["successes"]
+    # the base file is made once and kept beside the grown one
+    assert (path.parent / path.name.replace(".shift4", "")).is_file()
+
+
+def test_shifted_replays_refuse_an_expert_without_them():
+    from omegaconf import OmegaConf
+
+    from l1flow_rl.experts.cli import demo_options
+    from l1flow_rl.experts.registry import DemoGenerationError
+
+    cfg = OmegaConf.create({"demos": {"num": 3, "seed": 0, "quality": "expert", "shifted_replays": 5}})
+    with pytest.raises(DemoGenerationError, match=r"demos\.shifted_replays=5: the pusht expert"):
+        demo_options(cfg, load_task_config("pusht_state"))
