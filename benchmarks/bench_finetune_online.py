@@ -155,6 +155,18 @@ def seeded_control(per_seed: dict[int, dict]) -> dict:
     }
 
 
+def data_cost(dataset: str | None) -> dict | None:
+    """What making the run's data cost in the simulator beyond the start's demonstrations: a robomimic
+    file grown by ``demos.shifted_replays`` records its attempts and env steps; None for other data."""
+    if not dataset or not str(dataset).endswith(".hdf5") or not Path(dataset).is_file():
+        return None
+    import h5py
+
+    with h5py.File(dataset, "r") as f:
+        raw = f["data"].attrs.get("shifted_replays")
+    return json.loads(raw) if raw else None
+
+
 def read_control(run_dir: Path) -> dict:
     """A control arm's test figure: a ``l1flow-rl train`` run (the BC start, continued BC) or a finished
     fine-tuning run, read from its ``eval.json``."""
@@ -166,6 +178,7 @@ def read_control(run_dir: Path) -> dict:
         "test": {k: test.get(k) for k in ("success_once", "success_at_end", "episodes", "ci95", "selection")},
         "steps": summary.get("steps"),
         "cpu_seconds": summary.get("cpu_seconds"),
+        "data_cost": data_cost(summary.get("dataset")),
     }
 
 
@@ -223,6 +236,7 @@ def read_run(run_dir: Path) -> dict:
             for k in ("online_updates", "env_steps", "wall_seconds", "cpu_seconds", "online_seconds")
         },
         "machine": summary.get("machine"),
+        "data_cost": data_cost(summary.get("dataset")),
     }
 
 
@@ -289,7 +303,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", required=True)
     parser.add_argument("--task", default="maniskill_pickcube")
-    parser.add_argument("--algorithms", nargs="+", default=list(CPU_BUDGET))
+    parser.add_argument("--algorithms", nargs="*", default=list(CPU_BUDGET), help="none: the controls only")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
     parser.add_argument("--steps", type=int, default=100_000)
     parser.add_argument("--eval-every", type=int, default=20_000)

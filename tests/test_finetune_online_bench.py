@@ -179,3 +179,20 @@ def test_last_weights_are_collected_per_seed_and_an_untested_seed_is_left_out(tm
     assert control["test"]["success_once"] == pytest.approx(0.375)
     assert (control["test"]["min"], control["test"]["max"], control["test"]["episodes"]) == (0.36, 0.39, 100)
     assert last_weights_control({2: finished[2]}, args) is None
+
+
+def test_a_run_on_shifted_replays_reports_what_making_its_data_cost(tmp_path):
+    import h5py
+
+    from benchmarks.bench_finetune_online import data_cost
+
+    grown = tmp_path / "can.n30.mixed.shift200.hdf5"
+    with h5py.File(grown, "w") as f:
+        f.create_group("data").attrs["shifted_replays"] = json.dumps({"attempts": 200, "env_steps": 22491})
+    plain = tmp_path / "can.n30.hdf5"
+    with h5py.File(plain, "w") as f:
+        f.create_group("data")
+    assert data_cost(str(grown)) == {"attempts": 200, "env_steps": 22491}
+    assert data_cost(str(plain)) is None  # demonstrations only: nothing beyond the start's data
+    assert data_cost(None) is None and data_cost(str(tmp_path / "missing.hdf5")) is None
+    assert data_cost(str(tmp_path / "episodes.zarr")) is None

@@ -388,6 +388,7 @@ def run_finetune(cfg: DictConfig) -> int:
             "offline_updates": progress["offline_updates"],
             "online_updates": progress["online_updates"],
             "env_steps": progress["env_steps"],
+            "dataset": str(dataset),  # what it trained on (a file grown by shifted replays says their cost)
         }
         run.finish(policy, summary, plot=_plot)
     return 0
