@@ -102,3 +102,23 @@ def test_shifted_replays_refuse_an_expert_without_them():
     cfg = OmegaConf.create({"demos": {"num": 3, "seed": 0, "quality": "expert", "shifted_replays": 5}})
     with pytest.raises(DemoGenerationError, match=r"demos\.shifted_replays=5: the pusht expert"):
         demo_options(cfg, load_task_config("pusht_state"))
+
+
+def test_shifted_replays_are_refused_beside_a_users_file_and_below_zero():
+    from l1flow_rl.cli import compose_config
+    from l1flow_rl.config.validate import ConfigValidationError
+
+    with pytest.raises(ConfigValidationError, match=r"demos\.shifted_replays=5: it grows the expert's"):
+        compose_config(["task=robosuite_can", "demos.shifted_replays=5", "data.path=mine.hdf5"])
+    with pytest.raises(ConfigValidationError, match=r"demos\.shifted_replays=-1: expected"):
+        compose_config(["task=robosuite_can", "demos.shifted_replays=-1"])
+    # a fine-tune adopts its start's data.path after composing: the dataset step refuses it then
+    from omegaconf import open_dict
+
+    from l1flow_rl.workspace.dataset import resolve_dataset
+
+    cfg = compose_config(["task=robosuite_can", "demos.shifted_replays=5"])
+    with open_dict(cfg):
+        cfg.data.path = "mine.hdf5"
+    with pytest.raises(ConfigValidationError, match=r"not data\.path='mine\.hdf5'"):
+        resolve_dataset(cfg)

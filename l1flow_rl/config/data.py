@@ -6,7 +6,15 @@ from dataclasses import dataclass
 
 from omegaconf import OmegaConf
 
-__all__ = ["PADDING_RULES", "QUALITIES", "QUALITY_LABELS", "DataConfig", "DemosConfig", "quality_problems"]
+__all__ = [
+    "PADDING_RULES",
+    "QUALITIES",
+    "QUALITY_LABELS",
+    "DataConfig",
+    "DemosConfig",
+    "quality_problems",
+    "shifted_replay_problems",
+]
 
 #: what ``demos.quality`` takes: expert demonstrations, or a labelled mix (l1flow_rl.experts.quality)
 QUALITIES = ("expert", "mixed")
@@ -64,4 +72,20 @@ def quality_problems(cfg, command: str) -> list[str]:
                 f"data.labels={list(labels)!r}: unknown label(s) {unknown}; expected a non-empty subset of "
                 f"{list(QUALITY_LABELS)}"
             )
+    problems += shifted_replay_problems(cfg)
     return problems
+
+
+def shifted_replay_problems(cfg) -> list[str]:
+    """demos.shifted_replays grows the expert's demonstrations: a count >= 0, and not beside a
+    user's file (data.path), which it would not grow."""
+    shifted = OmegaConf.select(cfg, "demos.shifted_replays", default=0) or 0
+    if shifted < 0:
+        return [f"demos.shifted_replays={shifted}: expected a number of attempts >= 0"]
+    path = OmegaConf.select(cfg, "data.path", default=None)
+    if shifted and path:
+        return [
+            f"demos.shifted_replays={shifted}: it grows the expert's demonstrations, not data.path={path!r}; "
+            "drop one of them"
+        ]
+    return []

@@ -10,7 +10,8 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from torchrl.data import TensorDictReplayBuffer
 
-from l1flow_rl.config.data import PADDING_RULES
+from l1flow_rl.config.data import PADDING_RULES, shifted_replay_problems
+from l1flow_rl.config.validate import ConfigValidationError
 from l1flow_rl.data import (
     EpisodeDataError,
     action_pad_for,
@@ -31,6 +32,9 @@ def resolve_dataset(cfg: DictConfig, rank: int = 0, world: int = 1) -> Path:
     makes demonstrations; the others receive the path."""
     if rank == 0:
         task = OmegaConf.to_object(cfg.task)
+        problems = shifted_replay_problems(cfg)  # again: a fine-tune adopts its start's data.path
+        if problems:
+            raise ConfigValidationError(problems[0])
         if cfg.data.path:
             dataset = Path(cfg.data.path)
             prepare = get_simulator(task.simulator).prepare_dataset
