@@ -82,6 +82,18 @@ def _control_curve(runs) -> str:
     )
 
 
+def _data_cost(runs) -> str:
+    """What the arm's data cost in the simulator beyond the start's demonstrations (shifted replays),
+    as the first run records it (every seed trains on the same file)."""
+    cost = next((r.get("data_cost") for r in runs if r.get("data_cost")), None)
+    if not cost:
+        return ""
+    return (
+        f"; its data: {cost['attempts']} shifted replays, {cost['successes']} kept, "
+        f"{cost['env_steps']:,} env steps"
+    )
+
+
 def render_finetune_online(data: dict) -> str:
     lines = [
         f"Task {data['task']}, from `{data['checkpoint']}`; validation {data['val_episodes']} episodes every "
@@ -98,6 +110,7 @@ def render_finetune_online(data: dict) -> str:
             updates = f", {control['updates']:,} updates" if control.get("updates") else ""
             if control.get("overrides"):
                 updates += ", " + " ".join(f"`{o}`" for o in control["overrides"])
+            updates += _data_cost(control["seeds"].values())
             lines.append(
                 f"| {name}{updates} | {len(control['seeds'])} | {_rate(test['success_once'])} "
                 f"({_rate(test['min'])}-{_rate(test['max'])}; {test['episodes']} episodes) | "
@@ -114,6 +127,7 @@ def render_finetune_online(data: dict) -> str:
         speed = [r["env_steps_per_s_actor"] for r in runs if r.get("env_steps_per_s_actor")]
         ups = [r["updates_per_s"] for r in runs if r.get("updates_per_s")]
         early = " (stopped early)" if any(r["stopped_early"] for r in runs) else ""
+        early += _data_cost(runs)
         lines.append(
             f"| {name}{early} | {len(runs)} | {_rate(agg['test_mean'])} ({_rate(agg['test_min'])}-"
             f"{_rate(agg['test_max'])}) | {curve} | "

@@ -82,6 +82,14 @@ def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
     # an --override that reached the control too (an EMA) is named in its row
     data["controls"]["continued_bc"]["overrides"] = ["finetune.ema_power=0.75"]
     assert "| continued_bc, 8,000 updates, `finetune.ema_power=0.75` | 2 |" in render_finetune_online(data)
+    # data grown by shifted replays: its cost in env steps is named beside the arm
+    cost = {"attempts": 200, "successes": 196, "env_steps": 22491}
+    data["controls"]["continued_bc"]["seeds"]["1"]["data_cost"] = cost
+    data["algorithms"]["dsrl"]["runs"]["0"]["data_cost"] = cost
+    table = render_finetune_online(data)
+    grown = "; its data: 200 shifted replays, 196 kept, 22,491 env steps"
+    assert f"| continued_bc, 8,000 updates, `finetune.ema_power=0.75`{grown} | 2 |" in table
+    assert f"| dsrl{grown} | 1 |" in table
 
 
 def test_a_finished_run_reads_its_closing_validation_at_its_last_env_step(tmp_path):
