@@ -40,6 +40,7 @@ ALLOWED_FUNCTION_IMPORTS: dict[tuple[str, str], str] = {
     ("l1flow_rl.envs.robosuite.dataset", "l1flow_rl.data.formats.robomimic"): "h5py",
     ("l1flow_rl.envs.robosuite.dataset", "l1flow_rl.envs.robosuite.regenerate"): "h5py",
     ("l1flow_rl.experts.robosuite.demos", "l1flow_rl.data.formats.robomimic_writer"): "h5py",
+    ("l1flow_rl.experts.robosuite.shifted", "l1flow_rl.data.formats.robomimic_writer"): "h5py",
     ("l1flow_rl.experts.robosuite.demos", "l1flow_rl.envs.robosuite.regenerate"): "h5py",
     # ManiSkill's worker envs are gymnasium's AsyncVectorEnv (the maniskill extra)
     ("l1flow_rl.envs.maniskill", "l1flow_rl.envs.maniskill.async_env"): "gymnasium",

@@ -30,7 +30,9 @@ from l1flow_rl.experts.quality import (
     perturb_actions,
 )
 from l1flow_rl.experts.registry import DemoGenerationError
+from l1flow_rl.experts.robosuite.recording import record_episode
 from l1flow_rl.experts.robosuite.scripted import CLOSED, EXPERT_TASKS, OPEN, make_expert
+from l1flow_rl.experts.robosuite.shifted import add_shifted_replays
 
 __all__ = ["dataset_path", "ensure_robosuite_demos", "replay_actions", "run_episode"]
 
@@ -54,49 +56,6 @@ def dataset_path(
     )
 
 
-def _record(env, raw: dict, seed: int, act, gave_up, max_steps: int, extra: int) -> dict:
-    """Play ``act()`` from the scene of ``seed`` (``raw``: the observation ``env.reset()`` returned)
-    for up to ``max_steps`` steps, stopping ``extra`` steps into a success that holds (so that the
-    last stored state is a success state too) or when ``gave_up()``; the robomimic demo dict with
-    ``attrs["success"]``.
-
-    ``raw`` must be reset's own observation: another forced read here would advance robosuite's
-    observable sampling clocks by one substep, so that every step's observation would be sampled a
-    substep before the step ends and no longer equal the one regenerated from the stored state."""
-    states, actions, rewards, observations = [], [], [], []
-    success, streak = False, 0
-    for _ in range(max_steps):
-        action = act()
-        if action is None:
-            break
-        states.append(env.sim.get_state().flatten())
-        observations.append(sim.robomimic_obs(raw, []))
-        raw, reward = sim.step(env, action)
-        actions.append(action)
-        rewards.append(reward)
-        streak = streak + 1 if env._check_success() else 0
-        if streak > extra:
-            success = True
-            break
-        if gave_up():
-            break
-    observations.append(sim.robomimic_obs(raw, []))
-    obs = {k: np.stack([o[k] for o in observations[:-1]]) for k in observations[0]}
-    next_obs = {k: np.stack([o[k] for o in observations[1:]]) for k in observations[0]}
-    dones = np.zeros(len(actions), dtype=np.int64)
-    dones[-1] = int(success)  # a failed episode is cut short (truncated), not terminated
-    return {
-        "states": np.stack(states),
-        "actions": np.stack(actions),
-        "rewards": np.asarray(rewards),
-        "dones": dones,
-        "obs": obs,
-        "next_obs": next_obs,
-        "model_file": env.sim.model.get_xml(),
-        "attrs": {"seed": seed, "success": success},
-    }
-
-
 def run_episode(env, task: TaskConfig, seed: int, max_steps: int | None = None) -> dict | None:
     """One scripted episode from the scene of ``seed``; the robomimic demo dict, or None when the
     expert failed. The episode runs 1-3 steps past its first success (while success holds), so
@@ -107,7 +66,7 @@ def run_episode(env, task: TaskConfig, seed: int, max_steps: int | None = None) 
     expert = make_expert(task.env_id, env, rng)
     expert.reset()
     extra = int(rng.integers(1, 4))
-    demo = _record(
+    demo = record_episode(
         env, raw, seed, expert.act, lambda: expert.failed, max_steps or task.max_episode_steps, extra
     )
     return demo if demo["attrs"]["success"] else None
@@ -120,7 +79,9 @@ def replay_actions(env, task: TaskConfig, seed: int, actions: np.ndarray) -> dic
     raw = env.reset()
     queue = iter(np.asarray(actions, dtype=np.float64))
     extra = int(np.random.default_rng([seed, 8]).integers(1, 4))
-    return _record(env, raw, seed, lambda: next(queue, None), lambda: False, task.max_episode_steps, extra)
+    return record_episode(
+        env, raw, seed, lambda: next(queue, None), lambda: False, task.max_episode_steps, extra
+    )
 
 
 # -- workers -----------------------------------------------------------------------------------------
@@ -288,9 +249,6 @@ def ensure_robosuite_demos(
     state_task = dataclasses.replace(task, obs_mode="state", cameras=[])
     low_dim = dataset_path(state_task, num, data_dir, seed, quality, shifted_replays)
     if shifted_replays and not low_dim.is_file():
-        # optional dependency: the module imports h5py
-        from l1flow_rl.experts.robosuite.shifted import add_shifted_replays
-
         base = ensure_robosuite_demos(
             state_task,
             num,

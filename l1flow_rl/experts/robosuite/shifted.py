@@ -22,6 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.envs.robosuite import sim
@@ -29,6 +30,7 @@ from l1flow_rl.envs.robosuite.pool import worker_pool
 from l1flow_rl.experts.object_shift import shift_actions
 from l1flow_rl.experts.quality import GripperLayout
 from l1flow_rl.experts.registry import DemoGenerationError
+from l1flow_rl.experts.robosuite.recording import record_episode
 from l1flow_rl.experts.robosuite.scripted import CLOSED, OPEN
 
 __all__ = ["SHIFTED_OBJECTS", "SHIFT_SEEDS", "add_shifted_replays", "object_position", "shifted_replay"]
@@ -51,18 +53,17 @@ def shifted_replay(env, task: TaskConfig, source_state: np.ndarray, actions: np.
     """The episode recorded from ``source_state`` (its first MuJoCo state) with ``actions``, shifted
     to the object's position in the scene of ``seed`` and played there; the robomimic demo dict
     (``attrs``: success and the x, y offset)."""
-    # optional dependency: the recorder lives with the scripted demonstrations
-    from l1flow_rl.experts.robosuite.demos import _record
-
     sim.restore_state(env, source_state)
     source = object_position(env, task.env_id)
     sim.seed_episode(env, seed)
-    raw = env.reset()  # reset's own observation: _record's first step needs it (see its docstring)
+    raw = env.reset()  # reset's own observation: record_episode's first step needs it (see its docstring)
     offset = (object_position(env, task.env_id) - source)[:2]
     played = shift_actions(actions, offset, _GRIP)
     queue = iter(np.concatenate([played, np.repeat(played[-1:], SETTLE_STEPS, 0)]))
     extra = int(np.random.default_rng([seed, 8]).integers(1, 4))
-    demo = _record(env, raw, seed, lambda: next(queue, None), lambda: False, task.max_episode_steps, extra)
+    demo = record_episode(
+        env, raw, seed, lambda: next(queue, None), lambda: False, task.max_episode_steps, extra
+    )
     demo["attrs"] = {**demo["attrs"], "offset_xy": offset.tolist()}
     return demo
 
@@ -71,8 +72,6 @@ _WORKER: dict = {}
 
 
 def _worker_init(task: TaskConfig) -> None:
-    import torch
-
     torch.set_num_threads(1)
     _WORKER["task"] = task
     _WORKER["env"] = sim.make_from_env_args(sim.env_args_for_task(task, cameras=[]), source=task.name)
