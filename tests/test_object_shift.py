@@ -1,11 +1,13 @@
 """Object-centric shifts of absolute-control episodes (demos.shifted_replays): the weights, the
-shifted actions, their errors, and a real robosuite Can file grown by shifted replays."""
+shifted and turned actions, their errors, the nearest-source choice, and real robosuite Can and
+Square files grown by shifted replays."""
 
 from __future__ import annotations
 
 import h5py
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from l1flow_rl.config import load_task_config
 from l1flow_rl.experts.object_shift import final_grasp, shift_actions, shift_weights
@@ -56,6 +58,45 @@ def test_shifted_actions_move_only_the_position_targets_by_the_weighted_offset()
         shift_actions(actions, np.zeros(2), GripperLayout("delta", open=-1.0, closed=1.0))
 
 
+def test_a_turned_shift_turns_the_targets_about_the_object_with_the_weights():
+    actions = _episode([-1] * 4 + [1] * 10 + [-1] * 3)  # grasp 4-13, released at 14
+    top_down = Rotation.from_euler("xyz", [np.pi, 0.0, 0.3])
+    actions[:, 3:6] = top_down.as_rotvec()
+    pivot, offset, turn = np.array([0.02, -0.01]), np.array([0.03, 0.04]), 0.4
+    out = shift_actions(actions, offset, GRIP, hold=2, turn=turn, pivot=pivot)
+    w = shift_weights(actions, GRIP, hold=2)
+    for t in range(len(actions)):
+        c, s = np.cos(w[t] * turn), np.sin(w[t] * turn)
+        rel = actions[t, :2] - pivot
+        expected = pivot + np.array([c * rel[0] - s * rel[1], s * rel[0] + c * rel[1]]) + w[t] * offset
+        np.testing.assert_allclose(out[t, :2], expected, atol=1e-12)
+        # the orientation turns by w * turn about the vertical: same roll/pitch, yaw + w * turn
+        turned = Rotation.from_rotvec(out[t, 3:6])
+        assert (turned * top_down.inv()).magnitude() == pytest.approx(w[t] * turn, abs=1e-9)
+        np.testing.assert_allclose((turned * top_down.inv()).as_rotvec()[:2], 0.0, atol=1e-9)
+    np.testing.assert_array_equal(out[:, 2], actions[:, 2])  # height and gripper untouched
+    np.testing.assert_array_equal(out[:, 6], actions[:, 6])
+    np.testing.assert_allclose(out[14:], actions[14:], atol=1e-12)  # the place: as recorded
+    # a top-down gripper sits at ~pi, where axis-angle has two sides: the source's side is kept
+    assert np.abs(np.diff(out[:, 3:6], axis=0)).max() < 0.1
+    with pytest.raises(ValueError, match="pivot"):
+        shift_actions(actions, offset, GRIP, turn=0.4)
+    with pytest.raises(ValueError, match="OSC_POSE"):
+        shift_actions(actions[:, [0, 1, 2, 6]], offset, GRIP, turn=0.4, pivot=pivot)
+
+
+def test_a_turning_object_replays_one_of_its_nearest_sources():
+    from l1flow_rl.experts.robosuite.shifted import NEAREST_K, Source, nearest_sources
+
+    def source(name, x, yaw):
+        return Source(name, np.zeros(1), np.zeros((2, 7)), np.array([x, 0.0, 0.8]), yaw)
+
+    sources = [source("a", 0.0, 3.1), source("b", 0.0, 0.0), source("c", 0.05, 0.1), source("d", 0.0, -3.1)]
+    # metres plus radians, the yaw wrapped: -3.1 and 3.1 are 0.08 apart, not 6.2
+    near = nearest_sources(sources, np.array([0.0, 0.0, 0.8]), -3.12)
+    assert NEAREST_K == 3 and [s.name for s in near] == ["d", "a", "c"]
+
+
 @pytest.mark.robosuite
 def test_shifted_replays_grow_a_can_file_with_successes_labelled_shifted(tmp_path):
     pytest.importorskip("robosuite")
@@ -91,6 +132,36 @@ def test_shifted_replays_grow_a_can_file_with_successes_labelled_shifted(tmp_pat
     assert int(eps["episode"].unique().numel()) == stats["successes"]
     # the base file is made once and kept beside the grown one
     assert (path.parent / path.name.replace(".shift4", "")).is_file()
+
+
+@pytest.mark.robosuite
+def test_a_square_file_grows_by_turned_replays_and_a_lift_file_is_refused_first(tmp_path):
+    pytest.importorskip("robosuite")
+    import json
+
+    from l1flow_rl.experts import ensure_demos
+    from l1flow_rl.experts.registry import DemoGenerationError
+
+    task = load_task_config("robosuite_square")
+    path = ensure_demos(task, 8, tmp_path, shifted_replays=4, workers=1, progress=False)
+    with h5py.File(path, "r") as f:
+        stats = json.loads(f["data"].attrs["shifted_replays"])
+        shifted = [f["data"][m.decode()] for m in f["mask"]["shifted"][()]]
+        assert stats["attempts"] == 4 and stats["source_episodes"] == 8
+        # measured: 3 of the first 8 attempts from 8 sources (turns up to ~0.5 rad), 1 of 8 from 3,
+        # 14 of 16 from 50 (the nearest source's turn shrinks as the sources cover the yaws)
+        assert stats["successes"] >= 1 and len(shifted) == stats["successes"]
+        for g in shifted:
+            assert g.attrs["success"] and g.attrs["quality"] == "shifted"
+            assert abs(g.attrs["turn"]) <= np.pi and g.attrs["source_demo"] in {f"demo_{i}" for i in range(8)}
+    # refused before any demonstration is made (robosuite Lift: nothing to shift it to)
+    with pytest.raises(
+        DemoGenerationError, match=r"shifted_replays=3: task 'robosuite_lift'.*NutAssemblySquare"
+    ):
+        ensure_demos(
+            load_task_config("robosuite_lift"), 2, tmp_path / "lift", shifted_replays=3, progress=False
+        )
+    assert not (tmp_path / "lift").exists() or not any((tmp_path / "lift").rglob("*.hdf5"))
 
 
 def test_shifted_replays_refuse_an_expert_without_them():

@@ -1,24 +1,30 @@
-"""Object-centric shifts of an absolute-control episode (MimicGen's idea, translation only): the
+"""Object-centric shifts of an absolute-control episode (MimicGen's idea, in the table's plane): the
 approach and the grasp are relative to the object, the place is relative to the fixed goal.
 
-An episode recorded with the object at ``p`` is replayed with the object at ``p + d`` by adding
-``w_t * d`` to every absolute position target: ``w_t = 1`` up to ``hold`` steps after the final
-grasp closes (the approach, the grasp and the start of the lift follow the object), then ``w_t``
-fades linearly to 0 at the release (the carry bends back to the recorded place), and stays 0 after.
-The played episode's observations and success are the simulator's (see
+An episode recorded with the object at ``p`` (yaw ``a``) is replayed with the object at ``p + d``
+(yaw ``a + turn``) by moving every absolute pose target with the object: ``w_t = 1`` up to ``hold``
+steps after the final grasp closes (the approach, the grasp and the start of the lift follow the
+object), then ``w_t`` fades linearly to 0 at the release (the carry bends back to the recorded
+place), and stays 0 after. At weight ``w`` a target's position is turned by ``w * turn`` about the
+vertical through ``p`` and moved by ``w * d``, and its orientation turned by ``w * turn`` about the
+vertical. The played episode's observations and success are the simulator's (see
 :mod:`l1flow_rl.experts.robosuite.shifted`); nothing here assumes that the shifted episode succeeds.
 
-Only translation is shifted: an object whose grasp depends on its yaw (a nut, a tool) needs the
-rotation transformed too, which this does not do.
+A round object (a can) grasps alike at any yaw and needs the translation only (``turn=0``); a nut
+or a tool needs the turn too.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from l1flow_rl.experts.quality import GripperLayout
 
 __all__ = ["final_grasp", "shift_actions", "shift_weights"]
+
+#: an absolute OSC_POSE action: position (3), axis-angle orientation (3), ..., gripper (last)
+_ROTATION = slice(3, 6)
 
 
 def final_grasp(actions: np.ndarray, grip: GripperLayout) -> tuple[int, int]:
@@ -48,9 +54,29 @@ def shift_weights(actions: np.ndarray, grip: GripperLayout, hold: int = 10) -> n
     return weights
 
 
-def shift_actions(actions: np.ndarray, offset: np.ndarray, grip: GripperLayout, hold: int = 10) -> np.ndarray:
-    """``actions`` [T, A] (absolute position targets in dims 0-2) with ``w_t * offset`` added to
-    the position dims; ``offset`` has 2 (x, y) or 3 entries. Other dims are unchanged."""
+def _same_side(rotvec: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Each axis-angle row of ``rotvec`` written on the side (``r`` or ``r - 2 pi r / |r|``, the same
+    rotation) nearer to ``reference``'s row: a top-down gripper is a rotation by ~pi, where scipy may
+    pick either side, and a jump of ~2 pi between steps is not what the recorded actions did."""
+    angle = np.linalg.norm(rotvec, axis=1, keepdims=True)
+    other = rotvec - 2 * np.pi * rotvec / np.maximum(angle, 1e-12)
+    nearer = np.linalg.norm(other - reference, axis=1) < np.linalg.norm(rotvec - reference, axis=1)
+    return np.where(nearer[:, None] & (angle > 1e-6), other, rotvec)
+
+
+def shift_actions(
+    actions: np.ndarray,
+    offset: np.ndarray,
+    grip: GripperLayout,
+    hold: int = 10,
+    *,
+    turn: float = 0.0,
+    pivot: np.ndarray | None = None,
+) -> np.ndarray:
+    """``actions`` [T, A] (absolute world-frame position targets in dims 0-2, axis-angle orientation
+    targets in dims 3-5) moved with the object (see the module docstring): ``offset`` has 2 (x, y) or
+    3 entries; ``turn`` (radians about the vertical) needs ``pivot``, the object's recorded position.
+    With ``turn=0`` only the position dims change. Other dims are unchanged."""
     if grip.control != "absolute":
         raise ValueError(
             f"an object shift moves absolute position targets; this task's control is {grip.control!r} "
@@ -60,6 +86,24 @@ def shift_actions(actions: np.ndarray, offset: np.ndarray, grip: GripperLayout, 
     offset = np.asarray(offset, dtype=np.float64)
     if offset.shape not in ((2,), (3,)):
         raise ValueError(f"offset has shape {offset.shape}: expected (2,) for x, y or (3,) for x, y, z")
+    weights = shift_weights(actions, grip, hold)
     out = actions.copy()
-    out[:, : len(offset)] += shift_weights(actions, grip, hold)[:, None] * offset
+    if turn:
+        if pivot is None or np.shape(pivot) not in ((2,), (3,)):
+            raise ValueError(f"turn={turn}: expected the object's recorded x, y as pivot, got {pivot!r}")
+        if actions.shape[1] < 7:
+            raise ValueError(
+                f"turn={turn}: expected OSC_POSE actions (position, axis-angle, gripper), "
+                f"got {actions.shape[1]} dims"
+            )
+        moving = weights > 0  # the steps after the release stay exactly as recorded
+        angles = weights[moving] * turn
+        cos, sin = np.cos(angles), np.sin(angles)
+        dx, dy = (actions[moving, :2] - np.asarray(pivot, dtype=np.float64)[:2]).T
+        out[moving, 0] = pivot[0] + cos * dx - sin * dy
+        out[moving, 1] = pivot[1] + sin * dx + cos * dy
+        rotvec = actions[moving, _ROTATION]
+        turned = (Rotation.from_euler("z", angles[:, None]) * Rotation.from_rotvec(rotvec)).as_rotvec()
+        out[moving, _ROTATION] = _same_side(turned, rotvec)
+    out[:, : len(offset)] += weights[:, None] * offset
     return out

@@ -32,7 +32,7 @@ from l1flow_rl.experts.quality import (
 from l1flow_rl.experts.registry import DemoGenerationError
 from l1flow_rl.experts.robosuite.recording import record_episode
 from l1flow_rl.experts.robosuite.scripted import CLOSED, EXPERT_TASKS, OPEN, make_expert
-from l1flow_rl.experts.robosuite.shifted import add_shifted_replays
+from l1flow_rl.experts.robosuite.shifted import add_shifted_replays, check_shifted_replays
 
 __all__ = ["dataset_path", "ensure_robosuite_demos", "replay_actions", "run_episode"]
 
@@ -242,6 +242,8 @@ def ensure_robosuite_demos(
             "set control: absolute"
         )
     check_quality(quality)
+    if shifted_replays:
+        check_shifted_replays(task, shifted_replays)  # before the base episodes are made
     target = dataset_path(task, num, data_dir, seed, quality, shifted_replays)
     if target.is_file():
         return target

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.envs.robosuite import sim
@@ -33,56 +34,121 @@ from l1flow_rl.experts.registry import DemoGenerationError
 from l1flow_rl.experts.robosuite.recording import record_episode
 from l1flow_rl.experts.robosuite.scripted import CLOSED, OPEN
 
-__all__ = ["SHIFTED_OBJECTS", "SHIFT_SEEDS", "add_shifted_replays", "object_position", "shifted_replay"]
+__all__ = [
+    "SHIFTED_OBJECTS",
+    "SHIFT_SEEDS",
+    "ShiftedObject",
+    "Source",
+    "add_shifted_replays",
+    "check_shifted_replays",
+    "nearest_sources",
+    "object_pose",
+    "shifted_replay",
+]
 
 SHIFT_SEEDS = 50_000_000
 MAX_ATTEMPTS = 100_000  # attempts per seed (the seed ranges of two file seeds must not meet)
 #: steps the last action is held after a replay's actions end: a released can is still falling
 SETTLE_STEPS = 40
-#: the grasped object of each task whose episodes can be shifted: translation-only shifts hold for a
-#: can (round: any yaw grasps alike); a nut or a tool would need its yaw transformed too
-SHIFTED_OBJECTS: dict[str, Callable] = {"PickPlaceCan": lambda env: env.obj_body_id["Can"]}
+#: a turning object's source is drawn among this many nearest in pose (MimicGen's nearest-neighbour
+#: source selection, its default k and its metric: metres plus radians)
+NEAREST_K = 3
 _GRIP = GripperLayout("absolute", open=OPEN, closed=CLOSED)
 
 
-def object_position(env, env_id: str) -> np.ndarray:
-    return np.array(env.sim.data.body_xpos[SHIFTED_OBJECTS[env_id](env)], dtype=np.float64)
+@dataclasses.dataclass(frozen=True)
+class ShiftedObject:
+    """The grasped object of a task whose episodes can be shifted."""
+
+    #: the object's MuJoCo body id in an env
+    body: Callable
+    #: the grasp depends on the object's yaw (a nut's handle): the approach turns with the object,
+    #: and each attempt replays one of its ``NEAREST_K`` nearest sources in pose, so that the turn
+    #: the carry has to undo stays small. A can grasps alike at any yaw: translation only, any source.
+    turns: bool
 
 
-def shifted_replay(env, task: TaskConfig, source_state: np.ndarray, actions: np.ndarray, seed: int) -> dict:
-    """The episode recorded from ``source_state`` (its first MuJoCo state) with ``actions``, shifted
-    to the object's position in the scene of ``seed`` and played there; the robomimic demo dict
-    (``attrs``: success and the x, y offset)."""
-    sim.restore_state(env, source_state)
-    source = object_position(env, task.env_id)
+SHIFTED_OBJECTS: dict[str, ShiftedObject] = {
+    "PickPlaceCan": ShiftedObject(lambda env: env.obj_body_id["Can"], turns=False),
+    "NutAssemblySquare": ShiftedObject(lambda env: env.obj_body_id[env.nuts[env.nut_id].name], turns=True),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Source:
+    """A successful episode to replay: its name, first MuJoCo state, actions and the object's pose
+    in its scene (position, yaw)."""
+
+    name: str
+    state: np.ndarray
+    actions: np.ndarray
+    position: np.ndarray
+    yaw: float
+
+
+def object_pose(env, env_id: str) -> tuple[np.ndarray, float]:
+    """The shifted object's world position and yaw (radians about the vertical)."""
+    body = SHIFTED_OBJECTS[env_id].body(env)
+    w, x, y, z = env.sim.data.body_xquat[body]
+    yaw = float(Rotation.from_quat([x, y, z, w]).as_euler("xyz")[2])
+    return np.array(env.sim.data.body_xpos[body], dtype=np.float64), yaw
+
+
+def _wrap(angle: float) -> float:
+    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+
+
+def read_source(env, env_id: str, name: str, state: np.ndarray, actions: np.ndarray) -> Source:
+    """A :class:`Source` with the object's pose read from ``state`` (restored in ``env``)."""
+    sim.restore_state(env, state)
+    position, yaw = object_pose(env, env_id)
+    return Source(name, state, np.asarray(actions), position, yaw)
+
+
+def nearest_sources(sources: list[Source], position: np.ndarray, yaw: float) -> list[Source]:
+    """The ``NEAREST_K`` sources nearest to the pose (metres of x, y plus radians of yaw), nearest
+    first (ties: the earlier source)."""
+    distance = [
+        float(np.linalg.norm(s.position[:2] - position[:2])) + abs(_wrap(yaw - s.yaw)) for s in sources
+    ]
+    return [sources[i] for i in np.argsort(distance, kind="stable")[:NEAREST_K]]
+
+
+def shifted_replay(env, task: TaskConfig, sources: list[Source], seed: int, draw: int) -> dict:
+    """One of ``sources`` moved to the object's pose in the scene of ``seed`` and played there: the
+    robomimic demo dict (``attrs``: success, the source, its x, y offset and turn). ``draw`` picks the
+    source: its index for a translated object, its rank among the nearest for a turning one."""
+    spec = SHIFTED_OBJECTS[task.env_id]
     sim.seed_episode(env, seed)
     raw = env.reset()  # reset's own observation: record_episode's first step needs it (see its docstring)
-    offset = (object_position(env, task.env_id) - source)[:2]
-    played = shift_actions(actions, offset, _GRIP)
+    position, yaw = object_pose(env, task.env_id)
+    source = nearest_sources(sources, position, yaw)[draw] if spec.turns else sources[draw]
+    offset = (position - source.position)[:2]
+    turn = _wrap(yaw - source.yaw) if spec.turns else 0.0
+    played = shift_actions(source.actions, offset, _GRIP, turn=turn, pivot=source.position[:2])
     queue = iter(np.concatenate([played, np.repeat(played[-1:], SETTLE_STEPS, 0)]))
     extra = int(np.random.default_rng([seed, 8]).integers(1, 4))
     demo = record_episode(
         env, raw, seed, lambda: next(queue, None), lambda: False, task.max_episode_steps, extra
     )
-    demo["attrs"] = {**demo["attrs"], "offset_xy": offset.tolist()}
+    demo["attrs"] = {**demo["attrs"], "source_demo": source.name, "offset_xy": offset.tolist()}
+    if spec.turns:
+        demo["attrs"]["turn"] = turn
     return demo
 
 
 _WORKER: dict = {}
 
 
-def _worker_init(task: TaskConfig) -> None:
+def _worker_init(task: TaskConfig, episodes: list[tuple[str, np.ndarray, np.ndarray]]) -> None:
     torch.set_num_threads(1)
-    _WORKER["task"] = task
-    _WORKER["env"] = sim.make_from_env_args(sim.env_args_for_task(task, cameras=[]), source=task.name)
+    env = sim.make_from_env_args(sim.env_args_for_task(task, cameras=[]), source=task.name)
+    # each source's pose is read once per worker, not once per attempt
+    _WORKER.update(task=task, env=env, sources=[read_source(env, task.env_id, *e) for e in episodes])
 
 
-def _worker_replay(
-    index: int, source: str, state: np.ndarray, actions: np.ndarray, seed: int
-) -> tuple[int, dict]:
-    demo = shifted_replay(_WORKER["env"], _WORKER["task"], state, actions, seed)
-    demo["attrs"]["source_demo"] = source
-    return index, demo
+def _worker_replay(index: int, seed: int, draw: int) -> tuple[int, dict]:
+    return index, shifted_replay(_WORKER["env"], _WORKER["task"], _WORKER["sources"], seed, draw)
 
 
 def _read_demo(group) -> dict:
@@ -95,6 +161,18 @@ def _read_demo(group) -> dict:
     attrs.pop("num_samples", None)
     demo["attrs"] = attrs
     return demo
+
+
+def check_shifted_replays(task: TaskConfig, attempts: int) -> None:
+    """Refuse ``demos.shifted_replays=attempts`` for ``task`` before any episode is made: its object
+    must be one :data:`SHIFTED_OBJECTS` names, and the count within 1 to ``MAX_ATTEMPTS``."""
+    if task.env_id not in SHIFTED_OBJECTS:
+        raise DemoGenerationError(
+            f"demos.shifted_replays={attempts}: task {task.name!r} ({task.env_id}) names no object to "
+            f"shift episodes to (tasks that do: {sorted(SHIFTED_OBJECTS)})"
+        )
+    if not 0 < attempts <= MAX_ATTEMPTS:
+        raise DemoGenerationError(f"demos.shifted_replays={attempts}: expected 1 to {MAX_ATTEMPTS} attempts")
 
 
 def add_shifted_replays(
@@ -117,13 +195,7 @@ def add_shifted_replays(
 
     from l1flow_rl.data.formats.robomimic_writer import RobomimicWriter
 
-    if task.env_id not in SHIFTED_OBJECTS:
-        raise DemoGenerationError(
-            f"demos.shifted_replays={attempts}: task {task.name!r} ({task.env_id}) names no object to "
-            f"shift episodes to (tasks that do: {sorted(SHIFTED_OBJECTS)})"
-        )
-    if not 0 < attempts <= MAX_ATTEMPTS:
-        raise DemoGenerationError(f"demos.shifted_replays={attempts}: expected 1 to {MAX_ATTEMPTS} attempts")
+    check_shifted_replays(task, attempts)
     with h5py.File(base, "r") as h5:
         names = sorted(h5["data"], key=lambda n: int(n.rsplit("_", 1)[1]))
         demos = [_read_demo(h5["data"][n]) for n in names]
@@ -132,17 +204,15 @@ def add_shifted_replays(
     sources = [i for i, d in enumerate(demos) if d["attrs"].get("success", True) and d["rewards"].max() > 0]
     if not sources:
         raise DemoGenerationError(f"{base}: no successful episode to make shifted replays from")
+    spec = SHIFTED_OBJECTS[task.env_id]
     rng = np.random.default_rng([seed, 13])
-    jobs = []
-    for i in range(attempts):
-        k = sources[int(rng.integers(len(sources)))]
-        jobs.append(
-            (i, names[k], demos[k]["states"][0], demos[k]["actions"], SHIFT_SEEDS + 100_000 * seed + i)
-        )
+    choices = min(NEAREST_K, len(sources)) if spec.turns else len(sources)
+    jobs = [(i, SHIFT_SEEDS + 100_000 * seed + i, int(rng.integers(choices))) for i in range(attempts)]
+    episodes = [(names[k], demos[k]["states"][0], demos[k]["actions"]) for k in sources]
     state_task = dataclasses.replace(task, obs_mode="state", cameras=[])
     played: list[dict | None] = [None] * attempts
     start = time.perf_counter()
-    with worker_pool(workers, _worker_init, (state_task,)) as pool:
+    with worker_pool(workers, _worker_init, (state_task, episodes)) as pool:
         futures = [pool.submit(_worker_replay, *job) for job in jobs]
         for fut in tqdm(
             cf.as_completed(futures), total=attempts, desc="shifted replays", disable=not progress
