@@ -151,6 +151,8 @@ def test_a_square_file_grows_by_turned_replays_and_a_lift_file_is_refused_first(
         # measured: 3 of the first 8 attempts from 8 sources (turns up to ~0.5 rad), 1 of 8 from 3,
         # 14 of 16 from 50 (the nearest source's turn shrinks as the sources cover the yaws)
         assert stats["successes"] >= 1 and len(shifted) == stats["successes"]
+        assert len(stats["failed"]) == 4 - stats["successes"]  # each failure named, not only counted
+        assert all(set(f) == {"seed", "source_demo", "offset_xy", "turn"} for f in stats["failed"])
         for g in shifted:
             assert g.attrs["success"] and g.attrs["quality"] == "shifted"
             assert abs(g.attrs["turn"]) <= np.pi and g.attrs["source_demo"] in {f"demo_{i}" for i in range(8)}

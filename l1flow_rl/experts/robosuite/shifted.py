@@ -186,9 +186,11 @@ def add_shifted_replays(
     progress: bool = True,
 ) -> Path:
     """``target``: ``base``'s episodes, then the successful ones of ``attempts`` shifted replays of
-    its successful episodes (each attempt's source drawn uniformly by ``seed``), labelled ``shifted``
+    its successful episodes (drawn by ``seed``: any source for a translated object, one of the
+    nearest for a turning one), labelled ``shifted``
     (``mask/shifted``; every earlier mask kept). The file's ``data`` attribute ``shifted_replays``
-    holds what they cost: attempts, successes, env steps of every attempt, seconds."""
+    holds what they cost: attempts, successes, env steps of every attempt, seconds, and each failed
+    attempt's seed, source and move."""
     # optional dependencies: h5py (robomimic files), tqdm (the app extra's progress bars)
     import h5py
     from tqdm import tqdm
@@ -227,6 +229,12 @@ def add_shifted_replays(
         "seconds": round(time.perf_counter() - start, 1),
         "seeds_from": SHIFT_SEEDS + 100_000 * seed,
         "source_episodes": len(sources),
+        # the attempts that did not succeed are not stored as episodes; what they were is kept here
+        "failed": [
+            {k: d["attrs"][k] for k in ("seed", "source_demo", "offset_xy", "turn") if k in d["attrs"]}
+            for d in played
+            if not d["attrs"]["success"]
+        ],
     }
     with RobomimicWriter(target, env_args) as writer:
         for demo in demos:
