@@ -44,6 +44,12 @@ def canonical_rotvec(rotation: Rotation) -> np.ndarray:
     return r
 
 
+def body_yaw(env, body_id: int) -> float:
+    """A MuJoCo body's yaw in the world (radians about the vertical)."""
+    w, x, y, z = env.sim.data.body_xquat[body_id]
+    return float(Rotation.from_quat([x, y, z, w]).as_euler("xyz")[2])
+
+
 @dataclass
 class Phase:
     """Move the commanded position to ``target()`` (evaluated when the phase starts) with the
@@ -97,8 +103,7 @@ class ScriptedExpert:
         return np.array(self.env.sim.data.body_xpos[body_id])
 
     def body_yaw(self, body_id: int) -> float:
-        w, x, y, z = self.env.sim.data.body_xquat[body_id]
-        return float(Rotation.from_quat([x, y, z, w]).as_euler("xyz")[2])
+        return body_yaw(self.env, body_id)
 
     def eef_rotation(self) -> Rotation:
         robot = self.env.robots[0]

@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.envs.robosuite import sim
@@ -32,7 +31,7 @@ from l1flow_rl.experts.object_shift import shift_actions
 from l1flow_rl.experts.quality import GripperLayout
 from l1flow_rl.experts.registry import DemoGenerationError
 from l1flow_rl.experts.robosuite.recording import record_episode
-from l1flow_rl.experts.robosuite.scripted import CLOSED, OPEN
+from l1flow_rl.experts.robosuite.scripted import CLOSED, OPEN, body_yaw
 
 __all__ = [
     "SHIFTED_OBJECTS",
@@ -89,9 +88,7 @@ class Source:
 def object_pose(env, env_id: str) -> tuple[np.ndarray, float]:
     """The shifted object's world position and yaw (radians about the vertical)."""
     body = SHIFTED_OBJECTS[env_id].body(env)
-    w, x, y, z = env.sim.data.body_xquat[body]
-    yaw = float(Rotation.from_quat([x, y, z, w]).as_euler("xyz")[2])
-    return np.array(env.sim.data.body_xpos[body], dtype=np.float64), yaw
+    return np.array(env.sim.data.body_xpos[body], dtype=np.float64), body_yaw(env, body)
 
 
 def _wrap(angle: float) -> float:
