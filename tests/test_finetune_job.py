@@ -141,21 +141,23 @@ def test_the_checkpoint_rebuilds_the_best_of_n_actor_for_eval(tmp_path, finetune
     assert main([*args, f"run_dir={out}"]) == 0
 
 
-def _killed_and_resumed(run_dir, args, monkeypatch) -> dict:
-    """``args`` killed during the second round's updates, then resumed from the checkpoint after the
-    first round: the resumed run's last checkpoint."""
+def _killed_and_resumed(run_dir, args, monkeypatch, kill_at: int = 4 + 2, saved: dict | None = None) -> dict:
+    """``args`` killed at update ``kill_at`` (default: the second of the online updates), then resumed
+    from the last checkpoint (default: after the first round; ``saved``: the progress it holds): the
+    resumed run's last checkpoint."""
     real_update, calls = finetune_job.update, {"n": 0}
 
     def crashing_update(*a, **k):
         calls["n"] += 1
-        if calls["n"] == 4 + 2:  # the second of the online updates
+        if calls["n"] == kill_at:
             raise RuntimeError("simulated kill")
         return real_update(*a, **k)
 
     monkeypatch.setattr(finetune_job, "update", crashing_update)
     with pytest.raises(RuntimeError, match="simulated kill"):
         main(args)
-    assert load_checkpoint(run_dir / "checkpoints" / "latest.pt")["progress"]["env_steps"] == 40
+    progress = load_checkpoint(run_dir / "checkpoints" / "latest.pt")["progress"]
+    assert {k: progress[k] for k in (saved or {"env_steps": 40})} == (saved or {"env_steps": 40})
     monkeypatch.setattr(finetune_job, "update", real_update)
     assert main([*args, "resume=true"]) == 0
     return load_checkpoint(run_dir / "checkpoints" / "latest.pt")
@@ -183,6 +185,21 @@ def test_resume_of_an_online_run_killed_mid_way_matches_an_uninterrupted_run(
     run_dir = tmp_path / "run"
     args = _args(run_dir, data_dir, bc_checkpoint, "finetune=qc", "eval.episodes=0")
     resumed = _killed_and_resumed(run_dir, args, monkeypatch)
+    _assert_same_run(resumed, load_checkpoint(finetuned / "checkpoints" / "latest.pt"))
+
+
+def test_an_offline_phase_killed_mid_way_resumes_from_its_last_checkpoint_as_the_uninterrupted_run(
+    tmp_path, data_dir, bc_checkpoint, finetuned, monkeypatch
+):
+    """offline.checkpoint_every=2: killed at the third of the 4 offline updates, the run resumes from
+    the 2 saved (not from the start) and ends where the uninterrupted run ends, online phase included."""
+    run_dir = tmp_path / "run"
+    args = _args(
+        run_dir, data_dir, bc_checkpoint, "finetune=qc", "eval.episodes=0", "offline.checkpoint_every=2"
+    )
+    resumed = _killed_and_resumed(
+        run_dir, args, monkeypatch, kill_at=3, saved={"offline_updates": 2, "env_steps": 0}
+    )
     _assert_same_run(resumed, load_checkpoint(finetuned / "checkpoints" / "latest.pt"))
 
 

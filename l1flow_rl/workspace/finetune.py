@@ -58,6 +58,7 @@ __all__ = ["adopt_start_data", "check_extension", "run_finetune", "start_dataset
 MAY_CHANGE = (
     "finetune.log_every",
     "offline.eval_every",
+    "offline.checkpoint_every",
     "online.eval_every",
     "online.checkpoint_every",
     "offline.steps",
@@ -325,7 +326,7 @@ def run_finetune(cfg: DictConfig) -> int:
                     run.log(step(), {**metrics, "env_steps": 0.0}, prefix="offline")
                 if off.eval_every and n % off.eval_every == 0:
                     run.validate(policy, step(), phase="offline", env_steps=0, updates=n)
-                if n == off.steps:
+                if n == off.steps or (off.checkpoint_every and n % off.checkpoint_every == 0):
                     save(dump_online=False)
                 run.step_done(step(), metrics, policy)  # a stop signal checkpoints here
 
