@@ -131,7 +131,45 @@ def test_shifted_replays_grow_a_can_file_with_successes_labelled_shifted(tmp_pat
     eps = load_episodes(path, labels=["shifted"], state_keys=list(task.state_keys), image_key=None)
     assert int(eps["episode"].unique().numel()) == stats["successes"]
     # the base file is made once and kept beside the grown one
-    assert (path.parent / path.name.replace(".shift4", "")).is_file()
+    base = path.parent / path.name.replace(".shift4", "")
+    assert base.is_file()
+    _base_episodes_and_attributes_go_on_verbatim(task, base, tmp_path)
+
+
+def _base_episodes_and_attributes_go_on_verbatim(task, base, tmp_path):
+    """A base file with what our writer never writes (a data attribute, an episode dataset, a gap in
+    the demo names that its masks refer to): the grown file keeps all of it, and the replays are
+    named past the last base episode."""
+    import shutil
+
+    from l1flow_rl.experts.robosuite.shifted import add_shifted_replays
+
+    user = tmp_path / "user.hdf5"
+    shutil.copy(base, user)
+    with h5py.File(user, "a") as f:
+        f["data"].attrs["date"] = "2026-11-29"
+        f["data"].move("demo_1", "demo_7")
+        f["data"]["demo_7"].create_dataset(
+            "action_dict/grip", data=np.arange(len(f["data"]["demo_7"]["actions"]))
+        )
+        masks = f.require_group("mask")
+        if "train" in masks:
+            del masks["train"]
+        masks.create_dataset("train", data=np.array(["demo_0", "demo_7"], dtype="S"))
+    grown = add_shifted_replays(task, user, tmp_path / "grown.hdf5", 2, workers=1, progress=False)
+    with h5py.File(user, "r") as u, h5py.File(grown, "r") as g:
+        added = [m.decode() for m in g["mask"]["shifted"][()]]
+        assert g["data"].attrs["date"] == "2026-11-29"
+        assert added and all(int(n.split("_")[1]) > 7 for n in added)
+        assert [m.decode() for m in g["mask"]["train"][()]] == ["demo_0", "demo_7", *added]
+        for name in ("demo_0", "demo_7"):
+            for key in ("states", "actions", "rewards", "dones"):
+                np.testing.assert_array_equal(g["data"][name][key][()], u["data"][name][key][()])
+            assert dict(g["data"][name].attrs).keys() == dict(u["data"][name].attrs).keys()
+        np.testing.assert_array_equal(
+            g["data"]["demo_7"]["action_dict/grip"][()], u["data"]["demo_7"]["action_dict/grip"][()]
+        )
+        assert g["data"].attrs["total"] == sum(len(g["data"][n]["actions"]) for n in g["data"])
 
 
 @pytest.mark.robosuite

@@ -71,11 +71,12 @@ class RobomimicWriter:
         self._data = self._file.create_group("data")
         self._data.attrs["env_args"] = json.dumps(env_args, default=_jsonable)
         self.num_demos = 0
+        self._next_index = 0  # the next demo_<i> that add() names (past every copied episode's)
         self.total = 0
 
     def add(self, demo: Mapping[str, Any], name: str | None = None) -> str:
         """Append a demo (as ``demo_<n>`` unless ``name`` is given); returns its name."""
-        name = name or f"demo_{self.num_demos}"
+        name = name or f"demo_{self._next_index}"
         steps = _check(name, demo)
         group = self._data.create_group(name)
         group.create_dataset("states", data=np.asarray(demo["states"], dtype=np.float64))
@@ -95,7 +96,20 @@ class RobomimicWriter:
         for key, value in (demo.get("attrs") or {}).items():
             group.attrs[key] = value
         self.num_demos += 1
+        self._next_index += 1
         self.total += steps
+        return name
+
+    def copy(self, group: h5py.Group) -> str:
+        """Append an episode of another robomimic file verbatim under its own name (``demo_<i>``):
+        every dataset and attribute it holds is kept, not only those :meth:`add` writes."""
+        name = group.name.rsplit("/", 1)[1]
+        if name in self._data:
+            raise ValueError(f"demo {name}: already in {self.path}")
+        group.file.copy(group, self._data, name=name)
+        self.num_demos += 1
+        self._next_index = max(self._next_index, int(name.rsplit("_", 1)[1]) + 1)
+        self.total += len(group["actions"])
         return name
 
     def add_mask(self, name: str, demos: Sequence[str]) -> None:

@@ -200,6 +200,10 @@ def add_shifted_replays(
         demos = [_read_demo(h5["data"][n]) for n in names]
         masks = {k: [m.decode() for m in h5["mask"][k][()]] for k in h5.get("mask", {})}
         env_args = json.loads(h5["data"].attrs["env_args"])
+        # the base file's own attributes go on (the writer sets env_args and total; ours is rewritten)
+        data_attrs = {
+            k: v for k, v in h5["data"].attrs.items() if k not in ("env_args", "total", "shifted_replays")
+        }
     sources = [i for i, d in enumerate(demos) if d["attrs"].get("success", True) and d["rewards"].max() > 0]
     if not sources:
         raise DemoGenerationError(f"{base}: no successful episode to make shifted replays from")
@@ -233,9 +237,11 @@ def add_shifted_replays(
             if not d["attrs"]["success"]
         ],
     }
-    with RobomimicWriter(target, env_args) as writer:
-        for demo in demos:
-            writer.add(demo)
+    with RobomimicWriter(target, env_args) as writer, h5py.File(base, "r") as h5:
+        for name in names:  # verbatim: every dataset and attribute of the base episodes kept
+            writer.copy(h5["data"][name])
+        for key, value in data_attrs.items():
+            writer.set_data_attr(key, value)
         added = [writer.add({**d, "attrs": {**d["attrs"], "quality": "shifted"}}) for d in kept]
         masks["train"] = [*masks.get("train", names), *added]
         masks["shifted"] = [*masks.get("shifted", []), *added]
