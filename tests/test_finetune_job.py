@@ -145,6 +145,7 @@ def _killed_and_resumed(run_dir, args, monkeypatch, kill_at: int = 4 + 2, saved:
     """``args`` killed at update ``kill_at`` (default: the second of the online updates), then resumed
     from the last checkpoint (default: after the first round; ``saved``: the progress it holds): the
     resumed run's last checkpoint."""
+    saved = saved or {"env_steps": 40}
     real_update, calls = finetune_job.update, {"n": 0}
 
     def crashing_update(*a, **k):
@@ -157,7 +158,7 @@ def _killed_and_resumed(run_dir, args, monkeypatch, kill_at: int = 4 + 2, saved:
     with pytest.raises(RuntimeError, match="simulated kill"):
         main(args)
     progress = load_checkpoint(run_dir / "checkpoints" / "latest.pt")["progress"]
-    assert {k: progress[k] for k in (saved or {"env_steps": 40})} == (saved or {"env_steps": 40})
+    assert {k: progress[k] for k in saved} == saved
     monkeypatch.setattr(finetune_job, "update", real_update)
     assert main([*args, "resume=true"]) == 0
     return load_checkpoint(run_dir / "checkpoints" / "latest.pt")

@@ -148,18 +148,6 @@ def _worker_replay(index: int, seed: int, draw: int) -> tuple[int, dict]:
     return index, shifted_replay(_WORKER["env"], _WORKER["task"], _WORKER["sources"], seed, draw)
 
 
-def _read_demo(group) -> dict:
-    demo = {k: group[k][()] for k in ("states", "actions", "rewards", "dones")}
-    for sub in ("obs", "next_obs"):
-        if sub in group:
-            demo[sub] = {k: group[sub][k][()] for k in group[sub]}
-    attrs = dict(group.attrs)
-    demo["model_file"] = attrs.pop("model_file")
-    attrs.pop("num_samples", None)
-    demo["attrs"] = attrs
-    return demo
-
-
 def check_shifted_replays(task: TaskConfig, attempts: int) -> None:
     """Refuse ``demos.shifted_replays=attempts`` for ``task`` before any episode is made: its object
     must be one :data:`SHIFTED_OBJECTS` names, and the count within 1 to ``MAX_ATTEMPTS``."""
@@ -196,22 +184,27 @@ def add_shifted_replays(
 
     check_shifted_replays(task, attempts)
     with h5py.File(base, "r") as h5:
-        names = sorted(h5["data"], key=lambda n: int(n.rsplit("_", 1)[1]))
-        demos = [_read_demo(h5["data"][n]) for n in names]
+        data = h5["data"]
+        names = sorted(data, key=lambda n: int(n.rsplit("_", 1)[1]))
+        # the successful episodes are the sources; a replay needs only their first state and actions
+        # (the base episodes themselves are copied whole below)
+        episodes = [
+            (n, data[n]["states"][0], data[n]["actions"][()])
+            for n in names
+            if data[n].attrs.get("success", True) and data[n]["rewards"][()].max() > 0
+        ]
         masks = {k: [m.decode() for m in h5["mask"][k][()]] for k in h5.get("mask", {})}
         env_args = json.loads(h5["data"].attrs["env_args"])
         # the base file's own attributes go on (the writer sets env_args and total; ours is rewritten)
         data_attrs = {
             k: v for k, v in h5["data"].attrs.items() if k not in ("env_args", "total", "shifted_replays")
         }
-    sources = [i for i, d in enumerate(demos) if d["attrs"].get("success", True) and d["rewards"].max() > 0]
-    if not sources:
+    if not episodes:
         raise DemoGenerationError(f"{base}: no successful episode to make shifted replays from")
     spec = SHIFTED_OBJECTS[task.env_id]
     rng = np.random.default_rng([seed, 13])
-    choices = min(NEAREST_K, len(sources)) if spec.turns else len(sources)
+    choices = min(NEAREST_K, len(episodes)) if spec.turns else len(episodes)
     jobs = [(i, SHIFT_SEEDS + 100_000 * seed + i, int(rng.integers(choices))) for i in range(attempts)]
-    episodes = [(names[k], demos[k]["states"][0], demos[k]["actions"]) for k in sources]
     state_task = dataclasses.replace(task, obs_mode="state", cameras=[])
     played: list[dict | None] = [None] * attempts
     start = time.perf_counter()
@@ -229,7 +222,7 @@ def add_shifted_replays(
         "env_steps": int(sum(len(d["actions"]) for d in played)),
         "seconds": round(time.perf_counter() - start, 1),
         "seeds_from": SHIFT_SEEDS + 100_000 * seed,
-        "source_episodes": len(sources),
+        "source_episodes": len(episodes),
         # the attempts that did not succeed are not stored as episodes; what they were is kept here
         "failed": [
             {k: d["attrs"][k] for k in ("seed", "source_demo", "offset_xy", "turn") if k in d["attrs"]}
