@@ -24,6 +24,12 @@ validation swings by up to 0.14 with the sampler's noise alone, so the start can
 on luck (Can: it did in all 3 seeds, so ``continued_bc`` reported the start's 0.09 while the last
 weights test 0.16); the two rows together show both readings of "more updates".
 Each online algorithm gets the same ``<algorithm>_last`` row: its runs' last weights on the test seeds.
+
+``--offline-only-updates N`` adds the arm that separates "online data" from "TD": per algorithm and
+seed, the algorithm's own preset and budget with N updates on the demonstrations alone (its critics
+trained by TD, its actor by its own loss; ``online.steps=0``), validated 4 times and tested as the
+continued-BC control is (``<algorithm>_offline``). Give N as the online run's updates (its offline
+updates plus its online ones; the online runs' ``summary`` records both) to compare at equal updates.
 """
 
 from __future__ import annotations
@@ -101,6 +107,34 @@ def continued_bc_cmd(seed: int, args, run_dir: Path) -> list[str]:
     ]
 
 
+def offline_only_cmd(algorithm: str, seed: int, args, run_dir: Path) -> list[str]:
+    """The algorithm's TD-only arm: its preset and CPU budget, ``--offline-only-updates`` updates on the
+    demonstrations, no env step (its offline phase alone)."""
+    updates = args.offline_only_updates
+    return [
+        sys.executable,
+        "-m",
+        "l1flow_rl.cli",
+        "finetune",
+        f"finetune={algorithm}",
+        f"checkpoint={args.checkpoint}",
+        f"task={args.task}",
+        f"run_dir={run_dir}",
+        "online.steps=0",
+        f"offline.steps={updates}",
+        f"offline.eval_every={max(updates // 4, 1)}",
+        f"eval.episodes={args.test_episodes}",
+        f"eval.val_episodes={args.val_episodes}",
+        f"seed={seed}",
+        *budget(algorithm, args.override),
+    ]
+
+
+def offline_arm(name: str) -> bool:
+    """Whether an arm is measured in updates on the demonstrations (no env step)."""
+    return name == "continued_bc" or name.endswith("_offline")
+
+
 def last_weights_eval_cmd(args, control_dir: Path, out_dir: Path) -> list[str]:
     """A run's last weights (``latest.pt``, not the validated choice) on the test seeds."""
     return [
@@ -131,13 +165,16 @@ def last_weights_control(finished: dict[int, Path], args) -> dict | None:
 
 
 def at_asked_length(run_dir: Path, name: str, args) -> bool:
-    """The run has its report (``eval.json``) at the length asked: ``--steps`` env steps, or for the
-    continued-BC control ``--continued-bc-updates`` updates."""
+    """The run has its report (``eval.json``) at the length asked: ``--steps`` env steps, for the
+    continued-BC control ``--continued-bc-updates`` updates, for a TD-only arm (``<algorithm>_offline``)
+    ``--offline-only-updates``."""
     if not (run_dir / "eval.json").is_file():
         return False
     summary = json.loads((run_dir / "summary.json").read_text())
     if name == "continued_bc":
         return summary["offline_updates"] >= args.continued_bc_updates
+    if name.endswith("_offline"):
+        return summary["offline_updates"] >= args.offline_only_updates
     return summary["env_steps"] >= args.steps
 
 
@@ -233,7 +270,14 @@ def read_run(run_dir: Path) -> dict:
         "updates_per_s": mean("updates_per_s", trained),
         "summary": {
             k: summary.get(k)
-            for k in ("online_updates", "env_steps", "wall_seconds", "cpu_seconds", "online_seconds")
+            for k in (
+                "offline_updates",
+                "online_updates",
+                "env_steps",
+                "wall_seconds",
+                "cpu_seconds",
+                "online_seconds",
+            )
         },
         "machine": summary.get("machine"),
         "data_cost": data_cost(summary.get("dataset")),
@@ -322,6 +366,12 @@ def main(argv: list[str] | None = None) -> int:
         default=0,
         help="per seed, a continued-BC control of this many demonstration-only updates from the checkpoint",
     )
+    parser.add_argument(
+        "--offline-only-updates",
+        type=int,
+        default=0,
+        help="per algorithm and seed, its TD-only arm: this many updates on the demonstrations alone",
+    )
     parser.add_argument("--jobs", type=int, default=1, help="runs at once")
     parser.add_argument("--root", default="runs/bench_finetune_online")
     parser.add_argument("--override", nargs="*", default=[])
@@ -341,12 +391,25 @@ def main(argv: list[str] | None = None) -> int:
     if args.continued_bc_updates:
         commands.update({("continued_bc", s): continued_bc_cmd(s, args, d) for s, d in control_dirs.items()})
         dirs.update({("continued_bc", s): d for s, d in control_dirs.items()})
+    offline_dirs = {
+        (f"{a}_offline", s): root / f"{args.task}_{a}_offline_seed{s}"
+        for a in args.algorithms
+        for s in args.seeds
+    }
+    if args.offline_only_updates:
+        commands.update(
+            {
+                (n, s): offline_only_cmd(n[: -len("_offline")], s, args, d)
+                for (n, s), d in offline_dirs.items()
+            }
+        )
+        dirs.update(offline_dirs)
     if not args.collect_only:
         pending = [(key, dirs[key]) for key in commands if not at_asked_length(dirs[key], key[0], args)]
         for (name, _), run_dir in pending:
             last = run_dir.with_name(f"{run_dir.name}_last")
             if (last / "eval.json").is_file():  # a finished run is extended: its last weights change
-                length = "offline_updates" if name == "continued_bc" else "env_steps"
+                length = "offline_updates" if offline_arm(name) else "env_steps"
                 done = json.loads((run_dir / "summary.json").read_text())[length]
                 last.rename(last.with_name(f"{last.name}_{done}"))  # its old last weights' test is kept
         running: list[tuple[tuple[str, int], subprocess.Popen]] = []
@@ -377,6 +440,18 @@ def main(argv: list[str] | None = None) -> int:
                     "updates": args.continued_bc_updates,
                     "overrides": list(args.override),
                 }
+    for a in args.algorithms if args.offline_only_updates else []:
+        finished = {
+            s: dirs[(f"{a}_offline", s)]
+            for s in args.seeds
+            if at_asked_length(dirs[(f"{a}_offline", s)], f"{a}_offline", args)
+        }
+        if finished:
+            controls[f"{a}_offline"] = {
+                **seeded_control({s: read_control(d) for s, d in finished.items()}),
+                "updates": args.offline_only_updates,
+                "overrides": budget(a, args.override),
+            }
     for a in args.algorithms:  # each online run's last weights too, beside its validated choice
         finished = {s: dirs[(a, s)] for s in args.seeds if at_asked_length(dirs[(a, s)], a, args)}
         last = last_weights_control(finished, args)
@@ -397,6 +472,7 @@ def main(argv: list[str] | None = None) -> int:
         "task": args.task,
         "checkpoint": str(args.checkpoint),
         "online_steps": args.steps,
+        "offline_only_updates": args.offline_only_updates,
         "eval_every": args.eval_every,
         "val_episodes": args.val_episodes,
         "test_episodes": args.test_episodes,

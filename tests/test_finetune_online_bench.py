@@ -204,3 +204,51 @@ def test_a_run_on_shifted_replays_reports_what_making_its_data_cost(tmp_path):
     assert data_cost(str(plain)) is None  # demonstrations only: nothing beyond the start's data
     assert data_cost(None) is None and data_cost(str(tmp_path / "missing.hdf5")) is None
     assert data_cost(str(tmp_path / "episodes.zarr")) is None
+
+
+def test_the_td_only_arm_is_the_algorithms_preset_and_budget_on_the_demonstrations_alone(tmp_path):
+    """``--offline-only-updates``: the arm that separates "online data" from "TD" composes into the
+    algorithm's own preset and CPU budget with no env step, is extended like the continued-BC control,
+    and shows in the table as a seeded control at its update counts."""
+    from benchmarks.bench_finetune_online import at_asked_length, offline_only_cmd
+    from l1flow_rl.cli import compose_config
+
+    args = argparse.Namespace(
+        checkpoint="bc.pt",
+        task="robosuite_can",
+        offline_only_updates=6500,
+        test_episodes=100,
+        val_episodes=50,
+        override=["finetune.qc.freeze_flow=true", "online.updates_per_step=0.1"],
+    )
+    cmd = offline_only_cmd("qc", 0, args, tmp_path / "run")
+    assert cmd[3:5] == ["finetune", "finetune=qc"]
+    cfg = compose_config(cmd[5:], command="finetune")
+    assert cfg.finetune.algorithm == "qc" and cfg.online.steps == 0
+    assert (cfg.offline.steps, cfg.offline.eval_every) == (6500, 1625)  # the preset's 2,000 replaced
+    assert cfg.finetune.qc.num_samples == 8 and cfg.finetune.qc.freeze_flow  # the budget, then --override
+    # asked at 6,500 updates: a finished run of 1,625 is extended, one of 6,500 is read
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "eval.json").write_text(json.dumps({"success_once": 0.3, "episodes": 100}))
+    (run / "summary.json").write_text(json.dumps({"offline_updates": 1625, "env_steps": 0}))
+    assert not at_asked_length(run, "qc_offline", args)
+    (run / "summary.json").write_text(json.dumps({"offline_updates": 6500, "env_steps": 0}))
+    assert at_asked_length(run, "qc_offline", args)
+    evaluations = [{"step": 0, "success_once": 0.38}, {"step": 6500, "success_once": 0.3}]
+    test = {"success_once": 0.3, "episodes": 100, "selection": {"evaluations": evaluations}}
+    control = {**seeded_control({0: {**read_control(run), "test": test}}), "updates": 6500}
+    control["overrides"] = ["finetune.qc.freeze_flow=true"]
+    data = {
+        "task": "robosuite_can",
+        "checkpoint": "bc.pt",
+        "eval_every": 25_000,
+        "val_episodes": 50,
+        "test_episodes": 100,
+        "controls": {"qc_offline": control},
+        "algorithms": {},
+    }
+    assert (
+        "| qc_offline, 6,500 updates, `finetune.qc.freeze_flow=true` | 1 | 0.30 (0.30-0.30; 100 episodes) | "
+        "0 upd.: 0.38, 6,500 upd.: 0.30 |" in render_finetune_online(data)
+    )
