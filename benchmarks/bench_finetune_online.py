@@ -66,68 +66,49 @@ def budget(algorithm: str, override: list[str]) -> list[str]:
     return [o for o in CPU_BUDGET[algorithm] if o.partition("=")[0] not in keys] + list(override)
 
 
-def run_one(algorithm: str, seed: int, args, run_dir: Path) -> list[str]:
+def finetune_cmd(
+    preset: str, seed: int, args, run_dir: Path, length: list[str], settings: list[str]
+) -> list[str]:
+    """One ``l1flow-rl finetune`` run from the bench's checkpoint: its preset, its length (env steps or
+    offline updates), the bench's validation and test sizes, then ``settings`` (budget, overrides)."""
     return [
         sys.executable,
         "-m",
         "l1flow_rl.cli",
         "finetune",
-        f"finetune={algorithm}",
+        f"finetune={preset}",
         f"checkpoint={args.checkpoint}",
         f"task={args.task}",
         f"run_dir={run_dir}",
-        f"online.steps={args.steps}",
-        f"online.eval_every={args.eval_every}",
+        *length,
         f"eval.episodes={args.test_episodes}",
         f"eval.val_episodes={args.val_episodes}",
         f"seed={seed}",
-        *budget(algorithm, args.override),
+        *settings,
     ]
+
+
+def offline_length(updates: int) -> list[str]:
+    """An offline-only run: ``updates`` on the demonstrations, no env step, validated 4 times."""
+    return ["online.steps=0", f"offline.steps={updates}", f"offline.eval_every={max(updates // 4, 1)}"]
+
+
+def run_one(algorithm: str, seed: int, args, run_dir: Path) -> list[str]:
+    length = [f"online.steps={args.steps}", f"online.eval_every={args.eval_every}"]
+    return finetune_cmd(algorithm, seed, args, run_dir, length, budget(algorithm, args.override))
 
 
 def continued_bc_cmd(seed: int, args, run_dir: Path) -> list[str]:
     """The continued-BC control: filtered BC's offline phase only (demonstrations, no env step)."""
-    updates = args.continued_bc_updates
-    return [
-        sys.executable,
-        "-m",
-        "l1flow_rl.cli",
-        "finetune",
-        "finetune=filtered_bc",
-        f"checkpoint={args.checkpoint}",
-        f"task={args.task}",
-        f"run_dir={run_dir}",
-        "online.steps=0",
-        f"offline.steps={updates}",
-        f"offline.eval_every={max(updates // 4, 1)}",
-        f"eval.episodes={args.test_episodes}",
-        f"eval.val_episodes={args.val_episodes}",
-        f"seed={seed}",
-        *args.override,
-    ]
+    length = offline_length(args.continued_bc_updates)
+    return finetune_cmd("filtered_bc", seed, args, run_dir, length, list(args.override))
 
 
 def offline_only_cmd(algorithm: str, seed: int, args, run_dir: Path) -> list[str]:
     """The algorithm's TD-only arm: its preset and CPU budget, ``--offline-only-updates`` updates on the
     demonstrations, no env step (its offline phase alone)."""
-    updates = args.offline_only_updates
-    return [
-        sys.executable,
-        "-m",
-        "l1flow_rl.cli",
-        "finetune",
-        f"finetune={algorithm}",
-        f"checkpoint={args.checkpoint}",
-        f"task={args.task}",
-        f"run_dir={run_dir}",
-        "online.steps=0",
-        f"offline.steps={updates}",
-        f"offline.eval_every={max(updates // 4, 1)}",
-        f"eval.episodes={args.test_episodes}",
-        f"eval.val_episodes={args.val_episodes}",
-        f"seed={seed}",
-        *budget(algorithm, args.override),
-    ]
+    length = offline_length(args.offline_only_updates)
+    return finetune_cmd(algorithm, seed, args, run_dir, length, budget(algorithm, args.override))
 
 
 def offline_arm(name: str) -> bool:
