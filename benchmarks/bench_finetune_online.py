@@ -152,10 +152,9 @@ def at_asked_length(run_dir: Path, name: str, args) -> bool:
     if not (run_dir / "eval.json").is_file():
         return False
     summary = json.loads((run_dir / "summary.json").read_text())
-    if name == "continued_bc":
-        return summary["offline_updates"] >= args.continued_bc_updates
-    if name.endswith("_offline"):
-        return summary["offline_updates"] >= args.offline_only_updates
+    if offline_arm(name):
+        asked = args.continued_bc_updates if name == "continued_bc" else args.offline_only_updates
+        return summary["offline_updates"] >= asked
     return summary["env_steps"] >= args.steps
 
 
@@ -372,19 +371,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.continued_bc_updates:
         commands.update({("continued_bc", s): continued_bc_cmd(s, args, d) for s, d in control_dirs.items()})
         dirs.update({("continued_bc", s): d for s, d in control_dirs.items()})
-    offline_dirs = {
-        (f"{a}_offline", s): root / f"{args.task}_{a}_offline_seed{s}"
-        for a in args.algorithms
-        for s in args.seeds
-    }
-    if args.offline_only_updates:
-        commands.update(
-            {
-                (n, s): offline_only_cmd(n[: -len("_offline")], s, args, d)
-                for (n, s), d in offline_dirs.items()
-            }
-        )
-        dirs.update(offline_dirs)
+    for a in args.algorithms if args.offline_only_updates else []:
+        for seed in args.seeds:
+            key = (f"{a}_offline", seed)
+            dirs[key] = root / f"{args.task}_{a}_offline_seed{seed}"
+            commands[key] = offline_only_cmd(a, seed, args, dirs[key])
     if not args.collect_only:
         pending = [(key, dirs[key]) for key in commands if not at_asked_length(dirs[key], key[0], args)]
         for (name, _), run_dir in pending:
