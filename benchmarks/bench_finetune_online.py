@@ -106,9 +106,12 @@ def continued_bc_cmd(seed: int, args, run_dir: Path) -> list[str]:
 
 def offline_only_cmd(algorithm: str, seed: int, args, run_dir: Path) -> list[str]:
     """The algorithm's TD-only arm: its preset and CPU budget, ``--offline-only-updates`` updates on the
-    demonstrations, no env step (its offline phase alone)."""
+    demonstrations, no env step (its offline phase alone). Its length replaces an ``--override`` of the
+    same keys: the online runs' ``offline.steps`` (their offline phase) is part of its N."""
     length = offline_length(args.offline_only_updates)
-    return finetune_cmd(algorithm, seed, args, run_dir, length, budget(algorithm, args.override))
+    keys = {item.partition("=")[0] for item in length}
+    settings = [o for o in budget(algorithm, args.override) if o.partition("=")[0] not in keys]
+    return finetune_cmd(algorithm, seed, args, run_dir, length, settings)
 
 
 def offline_arm(name: str) -> bool:

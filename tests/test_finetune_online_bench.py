@@ -227,6 +227,10 @@ def test_the_td_only_arm_is_the_algorithms_preset_and_budget_on_the_demonstratio
     assert cfg.finetune.algorithm == "qc" and cfg.online.steps == 0
     assert (cfg.offline.steps, cfg.offline.eval_every) == (6500, 1625)  # the preset's 2,000 replaced
     assert cfg.finetune.qc.num_samples == 8 and cfg.finetune.qc.freeze_flow  # the budget, then --override
+    # the online runs' offline phase, given as an override, is part of the arm's N, not a second value
+    args.override = [*args.override, "offline.steps=3000", "online.steps=50000"]
+    cfg = compose_config(offline_only_cmd("qc", 0, args, tmp_path / "run")[5:], command="finetune")
+    assert (cfg.offline.steps, cfg.online.steps, cfg.online.updates_per_step) == (6500, 0, 0.1)
     # asked at 6,500 updates: a finished run of 1,625 is extended, one of 6,500 is read
     run = tmp_path / "run"
     run.mkdir()
