@@ -184,6 +184,7 @@ def _copy_latest(run: Path, into: Path) -> Path:
 def load_run(run: Path) -> tuple[DictConfig, Any, Any]:
     """(config with the current schema's defaults for keys the run predates, BC actor, demonstrations)."""
     from l1flow_rl.config.finetune import FinetuneConfig, OnlineConfig
+    from l1flow_rl.config.task import TaskConfig
     from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
     from l1flow_rl.workspace.dataset import load_task_episodes
     from l1flow_rl.workspace.finetune import start_dataset
@@ -191,6 +192,8 @@ def load_run(run: Path) -> tuple[DictConfig, Any, Any]:
     cfg = OmegaConf.load(run / "config.yaml")
     cfg.finetune = OmegaConf.merge(OmegaConf.structured(FinetuneConfig), cfg.finetune)
     cfg.online = OmegaConf.merge(OmegaConf.structured(OnlineConfig), cfg.online)
+    # typed as the job types it: a simulator's reader options read it by attribute (robosuite: state_keys)
+    cfg.task = OmegaConf.merge(OmegaConf.structured(TaskConfig), cfg.task)
     bc_state = load_checkpoint(cfg.checkpoint)
     bc_actor, bc_cfg = load_actor(cfg.checkpoint)  # EMA weights, as the fine-tuning job loads them
     cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)  # the network is the checkpoint's
