@@ -12,18 +12,20 @@ offline buffer, as the run samples it) the executed steps [h, A] (normalised uni
 * ``q_mu``, ``q_teacher``, ``q_demo``: the online critics' mean value of each (FQL acts with mu, so
   ``q_mu`` above ``q_teacher`` with ``mu_vs_teacher`` above ``teacher_spread`` reads "climbed the
   critics off the flow").
+* ``validation``: the run's validation success at the checkpoint's update count, where it ran one.
 
 All are means of absolute differences over the executed steps, actions and windows.
 
     .venv/bin/python -m benchmarks.diagnose_fql \\
         --run runs/bench_ft_can_mixed30c_fql/robosuite_can_fql_offline_seed0 \\
-        --checkpoints runs/fql_snap/*.pt --out benchmarks/results/diagnose_fql_can_mixed30c.json
+        --checkpoints runs/fql_snap/*.pt --out benchmarks/results/fql_distill_can_mixed30c.json
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import json
 from pathlib import Path
 
 import torch
@@ -110,10 +112,18 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         print(row, flush=True)
     rows.sort(key=lambda r: (r["updates"], r["env_steps"]))
+    history = run / "history.json"  # the run's validation at a checkpoint's update count, where it ran one
+    evals = json.loads(history.read_text())["evals"] if history.is_file() else []
+    validated = {(e["updates"], e["env_steps"]): e["success_once"] for e in evals if e["split"] == "val"}
+    for row in rows:
+        row["validation"] = validated.get((row["updates"], row["env_steps"]))
     save_results(
         Path(args.out),
         {
             "run": str(run),
+            "task": str(cfg.task.name),
+            "alpha": float(cfg.finetune.fql.alpha),
+            "normalize_q_loss": bool(cfg.finetune.fql.normalize_q_loss),
             "batches": args.batches,
             "batch_size": int(cfg.finetune.batch_size),
             "machine": machine_info("cpu"),

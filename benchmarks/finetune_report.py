@@ -16,6 +16,7 @@ __all__ = [
     "render_failure_phases",
     "render_finetune_cost",
     "render_finetune_online",
+    "render_fql_distill",
     "render_noise_authority",
     "render_noise_draw",
 ]
@@ -262,6 +263,32 @@ def render_noise_draw(data: dict) -> str:
             *_per_start_lines(data.get("per_start")),
         ]
     )
+
+
+def render_fql_distill(data: dict) -> str:
+    """An FQL run's one-step actor against its flow (``benchmarks/diagnose_fql.py``), per checkpoint."""
+    lines = [
+        f"`{data['run']}` ({data['task']}, alpha {data['alpha']:g}"
+        + (", Q loss normalised" if data["normalize_q_loss"] else "")
+        + f"): {data['batches']} batches of {data['batch_size']} demonstration windows; mean absolute "
+        "differences over the executed steps in normalised action units, and the critics' value of each "
+        "chunk.",
+        "",
+        "| updates | env steps | mu vs flow (same noise) | flow vs flow (two noises) | mu vs demo | "
+        "flow vs demo | Q(mu) | Q(flow) | Q(demo) | validation |",
+        "|" + "---|" * 10,
+    ]
+    for r in data["rows"]:
+        val = "–" if r.get("validation") is None else f"{r['validation']:.2f}"
+        measures = ("mu_vs_teacher", "teacher_spread", "mu_vs_demo", "teacher_vs_demo", "q_mu", "q_teacher")
+        cells = " | ".join(f"{r[k]:.3f}" for k in (*measures, "q_demo"))
+        lines.append(f"| {r['updates']:,} | {r['env_steps']:,} | {cells} | {val} |")
+    lines += [
+        "",
+        "mu acts; while its distance to the flow's chunk is many times the flow's own spread over noises, "
+        "it is not yet the flow's policy, whatever the critics say of it.",
+    ]
+    return "\n".join(lines)
 
 
 def render_failure_phases(data: dict) -> str:

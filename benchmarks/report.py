@@ -30,6 +30,7 @@ from benchmarks.finetune_report import (
     render_finetune_cost,
     render_finetune_online,
     render_finetune_shock,
+    render_fql_distill,
     render_noise_authority,
     render_noise_draw,
 )
@@ -597,6 +598,11 @@ GROUPS: dict[str, list[tuple[str, str, Callable[[dict], str]]]] = {
             r"diagnose_.*\.json",
             "Failure anatomy: the phase each episode ended in",
             render_failure_phases,
+        ),
+        (
+            r"fql_distill_.*\.json",
+            "FQL's one-step actor against its flow on the demonstrations",
+            render_fql_distill,
         ),
         (
             r"critic_bias_.*\.json",

@@ -33,3 +33,17 @@ def test_the_demonstrations_value_is_the_critic_losss_own_and_every_gap_is_a_mea
     assert all(out[k] >= 0 for k in gaps) and out["teacher_spread"] > 0  # two noises, two chunks
     # the demonstrations are no sample of a fresh flow: the teacher misses them by more than its spread
     assert out["teacher_vs_demo"] > out["teacher_spread"]
+
+
+def test_the_table_has_a_row_per_checkpoint_with_its_validation_where_one_ran():
+    from benchmarks.finetune_report import render_fql_distill
+
+    row = dict(mu_vs_teacher=0.19, teacher_spread=0.017, mu_vs_demo=0.2, teacher_vs_demo=0.035)
+    row.update(q_mu=0.74, q_teacher=0.7, q_demo=0.69, env_steps=0)
+    data = {"run": "r", "task": "robosuite_can", "alpha": 10.0, "normalize_q_loss": True, "batches": 8}
+    data["batch_size"] = 256
+    data["rows"] = [{**row, "updates": 1000, "validation": None}, {**row, "updates": 2620, "validation": 0.0}]
+    text = render_fql_distill(data)
+    assert "alpha 10, Q loss normalised" in text
+    assert "| 1,000 | 0 | 0.190 | 0.017 | 0.200 | 0.035 | 0.740 | 0.700 | 0.690 | – |" in text
+    assert text.count("| 2,620 | 0 |") == 1 and "| 0.00 |" in text
