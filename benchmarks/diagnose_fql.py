@@ -105,6 +105,7 @@ def main(argv: list[str] | None = None) -> int:
         progress = state["progress"]
         row = {
             "checkpoint": str(path),
+            "step": progress["offline_updates"] + progress["env_steps"],
             "updates": progress["offline_updates"] + progress["online_updates"],
             "env_steps": progress["env_steps"],
             **row,
@@ -114,9 +115,10 @@ def main(argv: list[str] | None = None) -> int:
     rows.sort(key=lambda r: (r["updates"], r["env_steps"]))
     history = run / "history.json"  # the run's validation at a checkpoint's update count, where it ran one
     evals = json.loads(history.read_text())["evals"] if history.is_file() else []
-    validated = {(e["updates"], e["env_steps"]): e["success_once"] for e in evals if e["split"] == "val"}
+    # a run's step counts offline updates, then env steps (a closing validation row records nothing else)
+    validated = {e["step"]: e["success_once"] for e in evals if e["split"] == "val"}
     for row in rows:
-        row["validation"] = validated.get((row["updates"], row["env_steps"]))
+        row["validation"] = validated.get(row["step"])
     save_results(
         Path(args.out),
         {

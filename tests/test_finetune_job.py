@@ -450,3 +450,22 @@ def test_the_shock_bench_reads_every_arm_from_the_same_start_and_adds_arms(tmp_p
     assert added["arms"]["fresh_adam"] == first["arms"]["fresh_adam"]
     with pytest.raises(SystemExit):  # other settings cannot be added to the same file
         shock.main([*base, "--updates", "3", "--reads", "1", "2", "--arms", "low_lr", "--add"])
+
+
+def test_an_fql_run_trains_its_one_step_actor_and_its_checkpoint_evaluates(tmp_path, data_dir, bc_checkpoint):
+    """FQL's acting module is its one-step actor mu (no sampler): ``l1flow-rl eval`` of its checkpoint
+    names it by class with its counted NFE (it crashed writing eval.json after its episodes)."""
+    from l1flow_rl import OneStepActor
+
+    run_dir = tmp_path / "fql"
+    overrides = ["finetune=fql", "finetune.fql.actor_hidden_dims=[32]", "eval.episodes=0"]
+    assert main(_args(run_dir, data_dir, bc_checkpoint, *overrides)) == 0
+    ckpt = run_dir / "checkpoints" / "latest.pt"
+    assert load_checkpoint(ckpt)["progress"]["online_updates"] == 4
+    actor, _ = load_actor(ckpt)
+    assert isinstance(actor, OneStepActor)
+    out = tmp_path / "eval"
+    args = ["eval", f"checkpoint={ckpt}", "eval.episodes=1", "eval.num_envs=1", "task.max_episode_steps=20"]
+    assert main([*args, f"run_dir={out}"]) == 0
+    sampler = json.loads((out / "eval.json").read_text())["sampler"]
+    assert sampler["name"] == "OneStepActor" and sampler["nfe"] == 1.0 and sampler["trained_with"] is None

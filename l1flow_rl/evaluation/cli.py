@@ -39,6 +39,15 @@ def _headline_rows(result: dict[str, Any], headline: str) -> dict[str, Any]:
     return rows
 
 
+def _samplerless(actor: Any, result: dict[str, Any]) -> dict[str, Any]:
+    return {
+        "name": type(actor).__name__,
+        "kwargs": {},
+        "nfe": result.get("nfe_per_chunk"),
+        "prediction": None,
+    }
+
+
 def run_eval(cfg: DictConfig) -> int:
     """``l1flow-rl eval checkpoint=PATH [policy.sampler=... policy.sampler_kwargs.k=v]
     [eval.protocol=NAME] [eval.episodes=N] run_dir=DIR``: writes DIR/eval.json (test seeds)."""
@@ -86,7 +95,8 @@ def run_eval(cfg: DictConfig) -> int:
         "checkpoint": str(cfg.checkpoint),
         "task": task.name,
         **plan.record("test", result),
-        "sampler": {**sampler_record(actor), "trained_with": trained},
+        # an actor with no sampler (FQL's one-step actor) is named by its class, with its counted NFE
+        "sampler": {**(sampler_record(actor) or _samplerless(actor, result)), "trained_with": trained},
         **result,
     }
     path = write_eval_json(run_dir / "eval.json", record)
