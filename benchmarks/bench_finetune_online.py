@@ -109,9 +109,13 @@ def offline_only_cmd(algorithm: str, seed: int, args, run_dir: Path) -> list[str
     demonstrations, no env step (its offline phase alone). Its length replaces an ``--override`` of the
     same keys: the online runs' ``offline.steps`` (their offline phase) is part of its N."""
     length = offline_length(args.offline_only_updates)
-    keys = {item.partition("=")[0] for item in length}
-    settings = [o for o in budget(algorithm, args.override) if o.partition("=")[0] not in keys]
-    return finetune_cmd(algorithm, seed, args, run_dir, length, settings)
+    return finetune_cmd(algorithm, seed, args, run_dir, length, offline_only_settings(algorithm, args))
+
+
+def offline_only_settings(algorithm: str, args) -> list[str]:
+    """The TD-only arm's budget and overrides, less the keys its own length sets."""
+    keys = {item.partition("=")[0] for item in offline_length(1)}
+    return [o for o in budget(algorithm, args.override) if o.partition("=")[0] not in keys]
 
 
 def offline_arm(name: str) -> bool:
@@ -425,7 +429,7 @@ def main(argv: list[str] | None = None) -> int:
             controls[f"{a}_offline"] = {
                 **seeded_control({s: read_control(d) for s, d in finished.items()}),
                 "updates": args.offline_only_updates,
-                "overrides": budget(a, args.override),
+                "overrides": offline_only_settings(a, args),
             }
     for a in args.algorithms:  # each online run's last weights too, beside its validated choice
         finished = {s: dirs[(a, s)] for s in args.seeds if at_asked_length(dirs[(a, s)], a, args)}
