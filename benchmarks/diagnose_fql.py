@@ -45,14 +45,9 @@ def compare(loss, batch) -> dict[str, float]:
     obs = loss.read_observation(batch, loss.tensor_keys.observation)
     flow, n = loss.reader, obs.shape[0]
     z, z2 = loss._noise(n, flow.action_normalizer.scale), loss._noise(n, flow.action_normalizer.scale)
-    cond = flow.encode(obs)
-
-    def teacher(noise):
-        return flow.sampler(lambda xt, t: flow.denoise(xt, t, cond), noise).clamp(-1.0, 1.0)
-
     with loss.actor_network_params.to_module(loss.actor_network):
         mu = loss.mu.chunk(obs, z)
-    t1, t2 = teacher(z), teacher(z2)
+    t1, t2 = loss.teacher_chunk(obs, z), loss.teacher_chunk(obs, z2)
     demo = flow.action_normalizer.normalize(batch.get(loss.tensor_keys.action_chunk).reshape(t1.shape))
     ex = loss.executed
 

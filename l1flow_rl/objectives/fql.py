@@ -113,15 +113,20 @@ class FQLLoss(ChunkCriticLoss):
             x = self.mu.chunk(next_obs, self._noise(next_obs.shape[0], scale))
         return self.aggregate_target(self.q(next_obs, self._env_executed(x), target=True))
 
+    @torch.no_grad()  # the teacher gets no gradient from distillation
+    def teacher_chunk(self, obs: TensorDictBase, z: Tensor) -> Tensor:
+        """The flow's 2-NFE chunk from noise ``z`` (normalised, clipped to the action range): mu's target."""
+        flow = self.reader
+        cond = flow.encode(obs)
+        return flow.sampler(lambda xt, t: flow.denoise(xt, t, cond), z).clamp(-1.0, 1.0)
+
     def actor_loss(self, td: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
         obs = self.read_observation(td, self.tensor_keys.observation)
         flow = self.reader
         z = self._noise(obs.shape[0], flow.action_normalizer.scale)
         with self.actor_network_params.to_module(self.actor_network):
             x = self.mu.chunk(obs, z)
-        with torch.no_grad():  # the teacher gets no gradient from distillation
-            cond = flow.encode(obs)
-            teacher = flow.sampler(lambda xt, t: flow.denoise(xt, t, cond), z).clamp(-1.0, 1.0)
+        teacher = self.teacher_chunk(obs, z)
         distill = (x - teacher).square().mean()
         q = self.q(obs, self._env_executed(x), detach=True).mean(-1)
         lam = 1.0 / q.abs().mean().detach().clamp_min(1e-6) if self.normalize_q_loss else q.new_ones(())
