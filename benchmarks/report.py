@@ -23,6 +23,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from benchmarks import finetune_overview
 from benchmarks.export_report import render_export_latency
 from benchmarks.finetune_report import (
     render_critic_bias,
@@ -37,9 +38,11 @@ from benchmarks.finetune_report import (
 from benchmarks.sweep import convergence_steps
 from l1flow_rl.workspace.run_clock import CPU_SCOPE
 
-__all__ = ["build_results", "build_summary", "main", "stale_sections"]
+__all__ = ["build_finetune_block", "build_results", "build_summary", "main", "stale_sections"]
 
 BEGIN, END = "<!-- results:begin (python -m benchmarks.report) -->", "<!-- results:end -->"
+#: the README's fine-tuning table (optional: a README without these markers has none)
+FT_BEGIN, FT_END = "<!-- finetune:begin (python -m benchmarks.report) -->", "<!-- finetune:end -->"
 RESULTS = Path("benchmarks/results")
 #: the generated document of every results file's section
 RESULTS_DOC = Path("benchmarks/RESULTS.md")
@@ -671,7 +674,19 @@ def _summary_parts(results: Path, doc: Path, level: str, overview_table: bool) -
         parts += [f"{level} Success across tasks (the paper's Table 2 and Figure 4)", "", overview, ""]
     if (results / OVERVIEW_PLOT).is_file():
         parts += [f"![Success across tasks]({_link(results / OVERVIEW_PLOT, doc)})", ""]
+    finetune = finetune_overview.overview_table(results) if overview_table else None
+    if finetune:  # the headline arms of every fine-tuning start, before each file's own section
+        parts += [f"{level} Fine-tuning at a glance", "", finetune, ""]
+        for start, path in zip(finetune_overview.HEADLINE, finetune_overview.figure_paths(results)):
+            if path.is_file():
+                parts += [f"![Fine-tuning: {start}]({_link(path, doc)})", ""]
     return parts
+
+
+def build_finetune_block(results: Path = RESULTS) -> str:
+    """The README's fine-tuning block between its markers: the headline arms' table."""
+    table = finetune_overview.overview_table(results) or "No fine-tuning results saved yet."
+    return "\n".join([FT_BEGIN, "", table, "", FT_END])
 
 
 def build_summary(results: Path = RESULTS, readme: Path = Path("README.md"), doc: Path = RESULTS_DOC) -> str:
@@ -762,13 +777,20 @@ def main(argv: list[str] | None = None) -> int:
         from benchmarks.success_overview import overview_figure
 
         overview_figure(results, results / OVERVIEW_PLOT)
+        finetune_overview.overview_figures(results)
     summary = build_summary(results, readme, out)
-    new_readme = text[: text.index(BEGIN)] + summary + text[text.index(END) + len(END) :]
+    blocks = [(BEGIN, END, summary, "the results summary")]
+    if FT_BEGIN in text and FT_END in text:
+        blocks.append((FT_BEGIN, FT_END, build_finetune_block(results), "the fine-tuning table"))
+    new_readme, stale_blocks = text, []
+    for begin, end, block, what in blocks:
+        old_block = new_readme[new_readme.index(begin) : new_readme.index(end) + len(end)]
+        if old_block != block:
+            stale_blocks.append(what)
+        new_readme = new_readme.replace(old_block, block)
     new_doc = build_results(results, out)
     if args.check:
-        problems = []
-        if new_readme != text:
-            problems.append(f"{readme}: the results summary between the markers is out of date")
+        problems = [f"{readme}: {what} between the markers is out of date" for what in stale_blocks]
         if not out.is_file():
             problems.append(f"{out}: missing")
         elif stale := stale_sections(out.read_text(), new_doc):

@@ -4,6 +4,8 @@ names what is out of date."""
 import json
 import re
 
+import pytest
+
 from benchmarks import bench_latency, report
 from benchmarks.defaults_evidence import evidence_table
 
@@ -157,3 +159,113 @@ def test_readme_stays_short_its_test_command_is_cis_and_its_snippet_runs(capsys)
     snippet = re.findall(r"```python\n(.*?)```", readme, re.S)[0]
     exec(compile(snippet, "README.md", "exec"), {})
     assert "torch.Size([1, 8, 4])" in capsys.readouterr().out
+
+
+def _finetune_file(start_test: float, online: list[float], control: list[float], data_steps=None) -> dict:
+    """A finetune_online_*.json as bench_finetune_online saves it, cut to what the overview reads."""
+    seeds = {
+        str(s): {
+            "test": {"success_once": t},
+            **({"data_cost": {"env_steps": data_steps}} if data_steps else {}),
+        }
+        for s, t in enumerate(control)
+    }
+    curve = [
+        {"env_steps": 0, "mean": 0.3, "min": 0.3, "max": 0.3},
+        {"env_steps": 20_000, "mean": 0.5, "min": 0.4, "max": 0.6},
+    ]
+    return {
+        "controls": {
+            "bc_start": {"run_dir": "runs/start", "test": {"success_once": start_test}},
+            "continued_bc": {
+                "seeds": seeds,
+                "test": {"success_once": sum(control) / len(control)},
+                "updates": 800,
+            },
+        },
+        "algorithms": {
+            "filtered_bc": {
+                "runs": {str(s): {"test": {"success_once": t}} for s, t in enumerate(online)},
+                "aggregate": {"curve": curve},
+            }
+        },
+    }
+
+
+def test_finetune_overview_reads_each_arm_from_its_file_and_refuses_mixed_starts(tmp_path):
+    from benchmarks.finetune_overview import Arm, overview_figures, overview_table
+
+    headline = {
+        "Toy (10 episodes)": [
+            Arm(
+                "online",
+                "finetune_online_a.json",
+                "algorithms.filtered_bc",
+                ("finetune_online_a.json", "controls.continued_bc"),
+            ),
+            Arm("continued BC", "finetune_online_a.json", "controls.continued_bc"),
+            Arm(
+                "replays",
+                "finetune_online_b.json",
+                "controls.continued_bc",
+                ("finetune_online_a.json", "controls.continued_bc"),
+            ),
+        ]
+    }
+    assert overview_table(tmp_path, headline) is None and overview_figures(tmp_path, headline) == []
+    (tmp_path / "finetune_online_a.json").write_text(
+        json.dumps(_finetune_file(0.25, [0.5, 0.6, 0.7], [0.2, 0.3]))
+    )
+    (tmp_path / "finetune_online_b.json").write_text(json.dumps(_finetune_file(0.25, [], [0.9, 0.8], 12_000)))
+    rows = [r for r in overview_table(tmp_path, headline).splitlines() if r.startswith("| ")][1:]
+    assert (
+        rows[0]
+        == "| Toy (10 episodes) (0.25) | online (`a`) | 3 | 20k | 0.60 (0.50 / 0.60 / 0.70) | +35 | +35 |"
+    )
+    assert rows[1] == "|  | continued BC (`a`) | 2 | 0 | 0.25 (0.20 / 0.30) | +0 | – |"
+    assert rows[2] == "|  | replays (`b`) | 2 | 12k of replays | 0.85 (0.90 / 0.80) | +60 | +60 |"
+    (figure,) = overview_figures(tmp_path, headline)
+    assert figure.name == "finetune_overview_toy_10_episodes.png" and figure.stat().st_size > 0
+
+    (tmp_path / "finetune_online_b.json").write_text(json.dumps(_finetune_file(0.3, [], [0.9], 12_000)))
+    with pytest.raises(ValueError, match=r"finetune_online_b.json starts from runs/start \(test 0.3\)"):
+        overview_table(tmp_path, headline)
+    missing = {"Toy": [Arm("qc", "finetune_online_a.json", "algorithms.qc")]}
+    with pytest.raises(
+        KeyError, match=r"finetune_online_a.json: no 'algorithms.qc' \(it has \['filtered_bc'\]\)"
+    ):
+        overview_table(tmp_path, missing)
+    unsaved = {
+        "Toy": [
+            Arm("x", "finetune_online_a.json", "controls.continued_bc"),
+            Arm("y", "gone.json", "controls.x"),
+        ]
+    }
+    with pytest.raises(FileNotFoundError, match=r"gone.json: named by HEADLINE \('y'\) but not saved"):
+        overview_table(tmp_path, unsaved)
+
+
+def test_every_headline_arm_of_the_saved_results_reads_and_the_readme_holds_their_table():
+    from pathlib import Path
+
+    from benchmarks.finetune_overview import HEADLINE, overview_table
+
+    root = Path(__file__).resolve().parents[1]
+    table = overview_table(root / "benchmarks" / "results")
+    assert len([r for r in table.splitlines() if r.startswith("| ")]) == 1 + sum(map(len, HEADLINE.values()))
+    readme = (root / "README.md").read_text()
+    assert readme.index(report.FT_BEGIN) < readme.index(table.splitlines()[2]) < readme.index(report.FT_END)
+
+
+def test_report_rebuilds_the_readmes_finetune_block_and_check_flags_it(tmp_path, capsys):
+    _, readme, _, argv = _setup(tmp_path, {})
+    readme.write_text(readme.read_text() + f"ft\n{report.FT_BEGIN}\nstale table\n{report.FT_END}\nend\n")
+    assert report.main(argv) == 0
+    text = readme.read_text()
+    assert (
+        "stale table" not in text and "No fine-tuning results saved yet." in text and text.endswith("end\n")
+    )
+    assert report.main([*argv, "--check"]) == 0
+    readme.write_text(text.replace("No fine-tuning results saved yet.", "typed by hand"))
+    assert report.main([*argv, "--check"]) == 1
+    assert "fine-tuning table between the markers is out of date" in capsys.readouterr().out

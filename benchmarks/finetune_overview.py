@@ -1,0 +1,290 @@
+"""Fine-tuning at a glance: the headline arms of every fine-tuning start, one table and one figure per
+start, read from the saved ``finetune_online_*.json`` files.
+
+Each ``bench_finetune_online`` invocation saves one file per experiment (one recipe, its controls); a
+reader asking "what helped on Can" wants the arms from one start side by side. :data:`HEADLINE` names
+them (a curated list: which rows a reader needs is a judgement, the numbers are not), and
+``benchmarks.report`` renders the table in RESULTS.md's summary and between the README's fine-tuning
+markers, and draws ``finetune_overview_<start>.png`` per start: each online arm's validation curve
+(mean and min-max band over seeds) against env steps, each arm's test as a marker (online and data
+arms, at their env steps) or a dashed line (arms that take no env step), the start's test as a grey line.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = ["HEADLINE", "Arm", "figure_paths", "overview_figures", "overview_table"]
+
+
+@dataclass(frozen=True)
+class Arm:
+    """One row: ``key`` is ``algorithms.<name>`` (an online arm) or ``controls.<name>`` (an arm without
+    env steps of its own: continued BC, a TD-only arm, or a data method whose env steps are its
+    ``data_cost``) of results file ``file``; ``baseline`` the (file, key) of the continued-BC control it
+    is measured against, if any."""
+
+    label: str
+    file: str
+    key: str
+    baseline: tuple[str, str] | None = None
+
+
+_CAN_C = "finetune_online_robosuite_can_mixed30c_"
+_CAN_CBC = (f"{_CAN_C}continued_bc.json", "controls.continued_bc")
+_PICK = "finetune_online_maniskill_pickcube_mixed50b_filtered_bc_an0p02_mask_100k.json"
+_SQUARE_CBC = ("finetune_online_robosuite_square50_continued_bc_8k.json", "controls.continued_bc")
+
+#: start -> its arms. Every arm of a start must share the start's run and test figure (checked): rows
+#: from different starts are not comparable. The critic arms' starts are the ones they were measured on.
+HEADLINE: dict[str, list[Arm]] = {
+    "PickCube (50 mixed episodes)": [
+        Arm(
+            "filtered BC online, preset `filtered_bc_delta`",
+            _PICK,
+            "algorithms.filtered_bc",
+            (_PICK, "controls.continued_bc"),
+        ),
+        Arm("continued BC, 8,000 updates", _PICK, "controls.continued_bc"),
+    ],
+    "PickCube (25 expert episodes)": [
+        Arm(
+            "DSRL online, SAC alpha 0.01",
+            "finetune_online_maniskill_pickcube_dsrl_alpha0p01.json",
+            "algorithms.dsrl",
+        ),
+    ],
+    "Can (30 mixed episodes)": [
+        Arm(
+            "filtered BC online, preset `filtered_bc`",
+            f"{_CAN_C}filtered_bc_ema.json",
+            "algorithms.filtered_bc",
+            _CAN_CBC,
+        ),
+        Arm("continued BC, 4,000 updates", *_CAN_CBC),
+        Arm(
+            "200 shifted replays, then 4,000 continued filtered-BC updates",
+            f"{_CAN_C}shift200.json",
+            "controls.continued_bc",
+            _CAN_CBC,
+        ),
+        Arm(
+            "200 shifted replays, then filtered BC online",
+            f"{_CAN_C}shift200_online.json",
+            "algorithms.filtered_bc",
+        ),
+        Arm("QC, flow frozen, best of 8, online", f"{_CAN_C}qc_frozen_100k.json", "algorithms.qc", _CAN_CBC),
+        Arm("QC's TD-only arm, 11,540 updates", f"{_CAN_C}qc_frozen_100k.json", "controls.qc_offline"),
+        Arm("FQL online (3,000 offline updates first)", f"{_CAN_C}fql_50k.json", "algorithms.fql"),
+        Arm("FQL's TD-only arm, 5,240 updates", f"{_CAN_C}fql_50k.json", "controls.fql_offline"),
+    ],
+    "Can (30 mixed episodes, an earlier start)": [
+        Arm("DSRL online", "finetune_online_robosuite_can_mixed30_dsrl.json", "algorithms.dsrl"),
+    ],
+    "Square (50 scripted episodes)": [
+        Arm(
+            "200 shifted replays, then 8,000 continued filtered-BC updates",
+            "finetune_online_robosuite_square50_shift200_8k.json",
+            "controls.continued_bc",
+            _SQUARE_CBC,
+        ),
+        Arm("continued BC, 8,000 updates", *_SQUARE_CBC),
+    ],
+}
+
+
+def _block(data: dict, key: str, file: str) -> dict:
+    group, _, name = key.partition(".")
+    block = data.get(group, {}).get(name)
+    if block is None:
+        raise KeyError(f"{file}: no {key!r} (it has {sorted(data.get(group, {}))}); fix HEADLINE")
+    return block
+
+
+def _tests(block: dict, online: bool) -> list[float]:
+    """The seeds' test success_once, in seed order."""
+    if online:
+        return [r["test"]["success_once"] for _, r in sorted(block["runs"].items()) if r.get("test")]
+    seeds = block.get("seeds") or {}
+    return [s["test"]["success_once"] for _, s in sorted(seeds.items())] or [block["test"]["success_once"]]
+
+
+def _data_steps(block: dict) -> float | None:
+    """A data arm's env steps: the mean over seeds of what its replays cost."""
+    costs = [s["data_cost"]["env_steps"] for s in (block.get("seeds") or {}).values() if s.get("data_cost")]
+    return sum(costs) / len(costs) if costs else None
+
+
+def _load(results: Path, name: str, cache: dict[str, dict], label: str) -> dict:
+    if name not in cache:
+        path = results / name
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: named by HEADLINE ({label!r}) but not saved")
+        cache[name] = json.loads(path.read_text())
+    return cache[name]
+
+
+def _read(results: Path, arm: Arm, cache: dict[str, dict]) -> dict[str, Any]:
+    data = _load(results, arm.file, cache, arm.label)
+    online = arm.key.startswith("algorithms.")
+    block = _block(data, arm.key, arm.file)
+    tests = _tests(block, online)
+    curve = block.get("aggregate", {}).get("curve", []) if online else []
+    row = {
+        "arm": arm,
+        "start": data["controls"]["bc_start"],
+        "tests": tests,
+        "mean": sum(tests) / len(tests),
+        "curve": curve,
+        "env_steps": max((c["env_steps"] for c in curve), default=0) if online else _data_steps(block),
+    }
+    if arm.baseline:
+        name, key = arm.baseline
+        base = _tests(_block(_load(results, name, cache, arm.label), key, name), False)
+        row["baseline"] = sum(base) / len(base)
+    return row
+
+
+def _rows(results: Path, headline: dict[str, list[Arm]]) -> dict[str, list[dict[str, Any]]]:
+    """Each start's rows, after checking that every arm of a start starts where its first does."""
+    cache: dict[str, dict] = {}
+    out = {}
+    for start, arms in headline.items():
+        rows = [_read(results, a, cache) for a in arms]
+        first = rows[0]["start"]
+        for r in rows[1:]:
+            if (r["start"]["run_dir"], r["start"]["test"]["success_once"]) != (
+                first["run_dir"],
+                first["test"]["success_once"],
+            ):
+                raise ValueError(
+                    f"HEADLINE[{start!r}]: {r['arm'].file} starts from {r['start']['run_dir']} (test "
+                    f"{r['start']['test']['success_once']}), {rows[0]['arm'].file} from {first['run_dir']} "
+                    f"(test {first['test']['success_once']}): rows of one start must share it"
+                )
+        out[start] = rows
+    return out
+
+
+def _name(file: str) -> str:
+    return file.removeprefix("finetune_online_").removesuffix(".json")
+
+
+def _k(steps: float) -> str:
+    return f"{steps / 1000:.3g}k"
+
+
+def _points(diff: float) -> str:
+    return f"{round(100 * diff):+d}"
+
+
+def overview_table(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> str | None:
+    """The markdown table of :data:`HEADLINE`, or None when none of its files is saved (a fresh folder)."""
+    if not any((results / a.file).is_file() for arms in headline.values() for a in arms):
+        return None
+    lines = [
+        "| start (its test) | arm (its file: `finetune_online_<name>.json`) | seeds | env steps "
+        "| test success (per seed) | over the start | over continued BC |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for start, rows in _rows(results, headline).items():
+        start_test = rows[0]["start"]["test"]["success_once"]
+        for i, r in enumerate(rows):
+            steps = r["env_steps"]
+            if r["arm"].key.startswith("controls.") and steps is None:
+                steps_text = "0"
+            elif r["arm"].key.startswith("controls."):
+                steps_text = f"{_k(steps)} of replays"
+            else:
+                steps_text = _k(steps)
+            first = f"{start} ({start_test:.2f})" if i == 0 else ""  # the start names its rows once
+            lines.append(
+                f"| {first} | {r['arm'].label} (`{_name(r['arm'].file)}`) | "
+                f"{len(r['tests'])} | "
+                f"{steps_text} | {r['mean']:.2f} ({' / '.join(f'{t:.2f}' for t in r['tests'])}) | "
+                f"{_points(r['mean'] - start_test)} | "
+                + (_points(r["mean"] - r["baseline"]) if "baseline" in r else "–")
+                + " |"
+            )
+    note = (
+        "Test: 100 episodes per seed on the test seeds, of the best-validated weights (a run keeps its "
+        "start when nothing validates above it); differences in points of the mean over seeds. A data "
+        "arm's env steps are those its replays took."
+    )
+    return "\n".join(lines) + "\n\n" + note
+
+
+def _slug(start: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "_", start.lower()).strip("_")
+
+
+def figure_paths(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> list[Path]:
+    """Where :func:`overview_figures` saves each start's figure, in :data:`HEADLINE`'s order."""
+    return [results / f"finetune_overview_{_slug(s)}.png" for s in headline]
+
+
+def overview_figures(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> list[Path]:
+    """One figure per start (see the module's docstring); the paths written, none on a fresh folder."""
+    if overview_table(results, headline) is None:
+        return []
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    for start, rows in _rows(results, headline).items():
+        fig, ax = plt.subplots(figsize=(7.5, 4.2))
+        ax.axhline(rows[0]["start"]["test"]["success_once"], color="grey", lw=1.5, label="BC start (test)")
+        right = max([r["env_steps"] or 0 for r in rows] + [1])
+        for i, r in enumerate(rows):
+            color, label = f"C{i}", r["arm"].label.replace("`", "")
+            lo, hi = min(r["tests"]), max(r["tests"])
+            if r["curve"]:
+                steps = [c["env_steps"] for c in r["curve"]]
+                ax.plot(steps, [c["mean"] for c in r["curve"]], "o-", ms=3, color=color, label=label)
+                ax.fill_between(
+                    steps,
+                    [c["min"] for c in r["curve"]],
+                    [c["max"] for c in r["curve"]],
+                    color=color,
+                    alpha=0.15,
+                )
+            if r["env_steps"]:  # an online or data arm's test, at its env steps
+                ax.errorbar(
+                    [r["env_steps"]],
+                    [r["mean"]],
+                    yerr=[[r["mean"] - lo], [hi - r["mean"]]],
+                    fmt="D",
+                    ms=7,
+                    color=color,
+                    mec="black",
+                    capsize=3,
+                    label=None if r["curve"] else label,
+                )
+            else:  # no env step of its own: its test as a level
+                ax.axhline(r["mean"], color=color, ls="--", lw=1.2, label=f"{label} (test)")
+        ax.set_xlim(-0.03 * right, 1.05 * right)
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("success_once")
+        ax.set_title(f"{start}: start test {rows[0]['start']['test']['success_once']:.2f}", fontsize=9)
+        fig.text(
+            0.01,
+            0.01,
+            "lines: validation (50 episodes), band min-max over seeds; diamonds with bars and "
+            "dashes: test (100 episodes per seed), mean and min-max",
+            fontsize=7,
+        )
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6.5, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+        fig.tight_layout(rect=(0, 0.04, 1, 1))
+        path = results / f"finetune_overview_{_slug(start)}.png"  # as figure_paths names it
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        written.append(path)
+    return written
