@@ -12,6 +12,11 @@ offline buffer, as the run samples it) the executed steps [h, A] (normalised uni
 * ``q_mu``, ``q_teacher``, ``q_demo``: the online critics' mean value of each (FQL acts with mu, so
   ``q_mu`` above ``q_teacher`` with ``mu_vs_teacher`` above ``teacher_spread`` reads "climbed the
   critics off the flow").
+* ``grad_q_over_distill`` and ``grad_cosine``: at mu's chunk, the actor loss's two gradients over
+  the executed steps (``lambda * Q`` against ``alpha * distillation``): their norms' ratio and cosine.
+  A ratio near 1 with cosine near -1 reads "mu sits where the critics' pull balances distillation":
+  more updates will not close its gap to the flow, only alpha can; a small ratio reads "mu is still
+  being fitted": the gap is a matter of updates.
 * ``validation``: the run's validation success at the checkpoint's update count, where it ran one.
 
 All are means of absolute differences over the executed steps, actions and windows.
@@ -57,6 +62,12 @@ def compare(loss, batch) -> dict[str, float]:
     def value(x):
         return float(loss.aggregate(loss.q(obs, flow.action_normalizer.unnormalize(ex(x)))).mean())
 
+    with torch.enable_grad():  # the actor loss's two gradients at mu's chunk, as FQLLoss.actor_loss forms it
+        x = mu.detach().requires_grad_(True)
+        distill, q, lam = loss.actor_terms(obs, x, t1)
+        (g_distill,) = torch.autograd.grad(loss.alpha * distill, x)
+        (g_q,) = torch.autograd.grad(-lam * q.mean(), x)
+    g_distill, g_q = ex(g_distill).flatten(), ex(g_q).flatten()
     return {
         "mu_vs_teacher": gap(mu, t1),
         "teacher_spread": gap(t1, t2),
@@ -65,6 +76,8 @@ def compare(loss, batch) -> dict[str, float]:
         "q_mu": value(mu),
         "q_teacher": value(t1),
         "q_demo": value(demo),
+        "grad_q_over_distill": float(g_q.norm() / g_distill.norm().clamp_min(1e-12)),
+        "grad_cosine": float(torch.nn.functional.cosine_similarity(g_q, g_distill, dim=0)),
     }
 
 

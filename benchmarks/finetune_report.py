@@ -275,18 +275,25 @@ def render_fql_distill(data: dict) -> str:
         "chunk.",
         "",
         "| updates | env steps | mu vs flow (same noise) | flow vs flow (two noises) | mu vs demo | "
-        "flow vs demo | Q(mu) | Q(flow) | Q(demo) | validation |",
-        "|" + "---|" * 10,
+        "flow vs demo | Q(mu) | Q(flow) | Q(demo) | \\|grad Q\\| / \\|grad distill\\| | their cosine "
+        "| validation |",
+        "|" + "---|" * 12,
     ]
     for r in data["rows"]:
         val = "–" if r.get("validation") is None else f"{r['validation']:.2f}"
         measures = ("mu_vs_teacher", "teacher_spread", "mu_vs_demo", "teacher_vs_demo", "q_mu", "q_teacher")
         cells = " | ".join(f"{r[k]:.3f}" for k in (*measures, "q_demo"))
-        lines.append(f"| {r['updates']:,} | {r['env_steps']:,} | {cells} | {val} |")
+        # the gradients' columns came later (a file saved before them shows dashes)
+        grads = " | ".join(
+            "–" if r.get(k) is None else f"{r[k]:.2f}" for k in ("grad_q_over_distill", "grad_cosine")
+        )
+        lines.append(f"| {r['updates']:,} | {r['env_steps']:,} | {cells} | {grads} | {val} |")
     lines += [
         "",
         "mu acts; while its distance to the flow's chunk is many times the flow's own spread over noises, "
-        "it is not yet the flow's policy, whatever the critics say of it.",
+        "it is not yet the flow's policy, whatever the critics say of it. The gradients (at mu's chunk, "
+        "over the executed steps): the critics' pull against distillation's; a ratio near 1 with cosine "
+        "near -1 would mean mu has stopped where the two balance (alpha, not more updates, sets its gap).",
     ]
     return "\n".join(lines)
 

@@ -120,16 +120,21 @@ class FQLLoss(ChunkCriticLoss):
         cond = flow.encode(obs)
         return flow.sampler(lambda xt, t: flow.denoise(xt, t, cond), z).clamp(-1.0, 1.0)
 
-    def actor_loss(self, td: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
-        obs = self.read_observation(td, self.tensor_keys.observation)
-        flow = self.reader
-        z = self._noise(obs.shape[0], flow.action_normalizer.scale)
-        with self.actor_network_params.to_module(self.actor_network):
-            x = self.mu.chunk(obs, z)
-        teacher = self.teacher_chunk(obs, z)
+    def actor_terms(self, obs: TensorDictBase, x: Tensor, teacher: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """The actor loss's parts at mu's chunk ``x`` (normalised): the distillation term
+        ``||x - teacher||^2`` (mean over the chunk), the critics' mean value of x's executed steps per
+        window (no gradient to the critics), and lambda (detached)."""
         distill = (x - teacher).square().mean()
         q = self.q(obs, self._env_executed(x), detach=True).mean(-1)
         lam = 1.0 / q.abs().mean().detach().clamp_min(1e-6) if self.normalize_q_loss else q.new_ones(())
+        return distill, q, lam
+
+    def actor_loss(self, td: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
+        obs = self.read_observation(td, self.tensor_keys.observation)
+        z = self._noise(obs.shape[0], self.reader.action_normalizer.scale)
+        with self.actor_network_params.to_module(self.actor_network):
+            x = self.mu.chunk(obs, z)
+        distill, q, lam = self.actor_terms(obs, x, self.teacher_chunk(obs, z))
         loss = self.alpha * distill - lam * q.mean()
         return loss, {
             "q_actor_mean": q.mean().detach(),
