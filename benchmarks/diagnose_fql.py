@@ -12,6 +12,8 @@ offline buffer, as the run samples it) the executed steps [h, A] (normalised uni
 * ``q_mu``, ``q_teacher``, ``q_demo``: the online critics' mean value of each (FQL acts with mu, so
   ``q_mu`` above ``q_teacher`` with ``mu_vs_teacher`` above ``teacher_spread`` reads "climbed the
   critics off the flow").
+* ``mu_spread``: |mu(s, z) - mu(s, z')|: how much of mu's gap is its answer to the noise (the flow
+  nearly ignores it: ``teacher_spread``), not a wrong mean.
 * ``grad_q_over_distill`` and ``grad_cosine``: at mu's chunk, the actor loss's two gradients over
   the executed steps (``lambda * Q`` against ``alpha * distillation``): their norms' ratio and cosine.
   A ratio near 1 with cosine near -1 reads "mu sits where the critics' pull balances distillation":
@@ -52,6 +54,7 @@ def compare(loss, batch) -> dict[str, float]:
     z, z2 = loss._noise(n, flow.action_normalizer.scale), loss._noise(n, flow.action_normalizer.scale)
     with loss.actor_network_params.to_module(loss.actor_network):
         mu = loss.mu.chunk(obs, z)
+        mu2 = loss.mu.chunk(obs, z2)
     t1, t2 = loss.teacher_chunk(obs, z), loss.teacher_chunk(obs, z2)
     demo = flow.action_normalizer.normalize(batch.get(loss.tensor_keys.action_chunk).reshape(t1.shape))
     ex = loss.executed
@@ -71,6 +74,7 @@ def compare(loss, batch) -> dict[str, float]:
     return {
         "mu_vs_teacher": gap(mu, t1),
         "teacher_spread": gap(t1, t2),
+        "mu_spread": gap(mu, mu2),
         "mu_vs_demo": gap(mu, demo),
         "teacher_vs_demo": gap(t1, demo),
         "q_mu": value(mu),

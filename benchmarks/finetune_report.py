@@ -274,16 +274,19 @@ def render_fql_distill(data: dict) -> str:
         "differences over the executed steps in normalised action units, and the critics' value of each "
         "chunk.",
         "",
-        "| updates | env steps | mu vs flow (same noise) | flow vs flow (two noises) | mu vs demo | "
+        "| updates | env steps | mu vs flow (same noise) | flow vs flow (two noises) | mu vs mu (two noises) "
+        "| mu vs demo | "
         "flow vs demo | Q(mu) | Q(flow) | Q(demo) | \\|grad Q\\| / \\|grad distill\\| | their cosine "
         "| validation |",
-        "|" + "---|" * 12,
+        "|" + "---|" * 13,
     ]
     for r in data["rows"]:
         val = "–" if r.get("validation") is None else f"{r['validation']:.2f}"
-        measures = ("mu_vs_teacher", "teacher_spread", "mu_vs_demo", "teacher_vs_demo", "q_mu", "q_teacher")
-        cells = " | ".join(f"{r[k]:.3f}" for k in (*measures, "q_demo"))
-        # the gradients' columns came later (a file saved before them shows dashes)
+        measures = ("mu_vs_teacher", "teacher_spread", "mu_spread", "mu_vs_demo", "teacher_vs_demo", "q_mu")
+        # mu's spread and the gradients came later (a file saved before them shows dashes)
+        cells = " | ".join(
+            "–" if r.get(k) is None else f"{r[k]:.3f}" for k in (*measures, "q_teacher", "q_demo")
+        )
         grads = " | ".join(
             "–" if r.get(k) is None else f"{r[k]:.2f}" for k in ("grad_q_over_distill", "grad_cosine")
         )

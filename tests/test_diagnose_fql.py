@@ -29,7 +29,7 @@ def test_the_demonstrations_value_is_the_critic_losss_own_and_every_gap_is_a_mea
     with torch.no_grad():
         # the stored chunk goes through the normaliser and back: the critics see what the TD loss sees
         assert abs(out["q_demo"] - float(loss(td)["q_data_mean"])) < 1e-5
-    gaps = ("mu_vs_teacher", "teacher_spread", "mu_vs_demo", "teacher_vs_demo")
+    gaps = ("mu_vs_teacher", "teacher_spread", "mu_spread", "mu_vs_demo", "teacher_vs_demo")
     assert all(out[k] >= 0 for k in gaps) and out["teacher_spread"] > 0  # two noises, two chunks
     # the demonstrations are no sample of a fresh flow: the teacher misses them by more than its spread
     assert out["teacher_vs_demo"] > out["teacher_spread"]
@@ -58,12 +58,11 @@ def test_the_table_has_a_row_per_checkpoint_with_its_validation_where_one_ran():
     data["rows"] = [{**row, "updates": 1000, "validation": None}, {**row, "updates": 2620, "validation": 0.0}]
     text = render_fql_distill(data)
     assert "alpha 10, Q loss normalised" in text
-    assert "| 1,000 | 0 | 0.190 | 0.017 | 0.200 | 0.035 | 0.740 | 0.700 | 0.690 | – | – | – |" in text
+    assert "| 1,000 | 0 | 0.190 | 0.017 | – | 0.200 | 0.035 | 0.740 | 0.700 | 0.690 | – | – | – |" in text
     assert text.count("| 2,620 | 0 |") == 1 and "| 0.00 |" in text
-    data["rows"] = [
-        {**row, "updates": 5240, "validation": 0.0, "grad_q_over_distill": 0.529, "grad_cosine": -0.43}
-    ]
-    assert (
-        "| 5,240 | 0 | 0.190 | 0.017 | 0.200 | 0.035 | 0.740 | 0.700 | 0.690 | 0.53 | -0.43 | 0.00 |"
-        in render_fql_distill(data)
+    row.update(mu_spread=0.048, grad_q_over_distill=0.529, grad_cosine=-0.43)
+    data["rows"] = [{**row, "updates": 5240, "validation": 0.0}]
+    line = (
+        "| 5,240 | 0 | 0.190 | 0.017 | 0.048 | 0.200 | 0.035 | 0.740 | 0.700 | 0.690 | 0.53 | -0.43 | 0.00 |"
     )
+    assert line in render_fql_distill(data)
