@@ -43,7 +43,7 @@ from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.workspace.checkpoint import load_checkpoint
 from l1flow_rl.workspace.rl_data import RLBuffers
 
-__all__ = ["compare", "main"]
+__all__ = ["compare", "main", "validations"]
 
 
 @torch.no_grad()
@@ -83,6 +83,21 @@ def compare(loss, batch) -> dict[str, float]:
         "grad_q_over_distill": float(g_q.norm() / g_distill.norm().clamp_min(1e-12)),
         "grad_cosine": float(torch.nn.functional.cosine_similarity(g_q, g_distill, dim=0)),
     }
+
+
+def validations(run: Path) -> dict[int, float]:
+    """The run's validation success_once by step (offline updates, then env steps): ``history.json``
+    (written when a run ends), overlaid by the csv logger's live file, which a stopped or running run
+    keeps up to date."""
+    history = run / "history.json"
+    evals = json.loads(history.read_text())["evals"] if history.is_file() else []
+    found = {e["step"]: e["success_once"] for e in evals if e["split"] == "val"}
+    live = run / "logs" / "finetune" / "scalars" / "val" / "success_once.csv"
+    if live.is_file():
+        for line in live.read_text().splitlines():
+            step, value = line.split(",")
+            found[int(step)] = float(value)
+    return found
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -125,10 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         print(row, flush=True)
     rows.sort(key=lambda r: (r["updates"], r["env_steps"]))
-    history = run / "history.json"  # the run's validation at a checkpoint's update count, where it ran one
-    evals = json.loads(history.read_text())["evals"] if history.is_file() else []
-    # a run's step counts offline updates, then env steps (a closing validation row records nothing else)
-    validated = {e["step"]: e["success_once"] for e in evals if e["split"] == "val"}
+    validated = validations(run)
     for row in rows:
         row["validation"] = validated.get(row["step"])
     save_results(

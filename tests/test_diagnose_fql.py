@@ -66,3 +66,21 @@ def test_the_table_has_a_row_per_checkpoint_with_its_validation_where_one_ran():
         "| 5,240 | 0 | 0.190 | 0.017 | 0.048 | 0.200 | 0.035 | 0.740 | 0.700 | 0.690 | 0.53 | -0.43 | 0.00 |"
     )
     assert line in render_fql_distill(data)
+
+
+def test_validations_come_from_the_history_and_the_live_log_of_a_stopped_run(tmp_path):
+    import json
+
+    from benchmarks.diagnose_fql import validations
+
+    assert validations(tmp_path) == {}
+    evals = [
+        {"step": 0, "split": "val", "success_once": 0.38},
+        {"step": 5240, "split": "test", "success_once": 0.37},
+    ]
+    (tmp_path / "history.json").write_text(json.dumps({"evals": evals}))
+    assert validations(tmp_path) == {0: 0.38}  # a test row is no validation
+    live = tmp_path / "logs" / "finetune" / "scalars" / "val"
+    live.mkdir(parents=True)
+    (live / "success_once.csv").write_text("0,0.38\n6000,0.0\n8000,0.02\n")  # written on, after the history
+    assert validations(tmp_path) == {0: 0.38, 6000: 0.0, 8000: 0.02}
