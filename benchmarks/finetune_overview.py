@@ -33,6 +33,10 @@ class Arm:
     key: str
     baseline: tuple[str, str] | None = None
 
+    @property
+    def online(self) -> bool:
+        return self.key.startswith("algorithms.")
+
 
 _CAN_C = "finetune_online_robosuite_can_mixed30c_"
 _CAN_CBC = (f"{_CAN_C}continued_bc.json", "controls.continued_bc")
@@ -130,17 +134,16 @@ def _load(results: Path, name: str, cache: dict[str, dict], label: str) -> dict:
 
 def _read(results: Path, arm: Arm, cache: dict[str, dict]) -> dict[str, Any]:
     data = _load(results, arm.file, cache, arm.label)
-    online = arm.key.startswith("algorithms.")
     block = _block(data, arm.key, arm.file)
-    tests = _tests(block, online)
-    curve = block.get("aggregate", {}).get("curve", []) if online else []
+    tests = _tests(block, arm.online)
+    curve = block.get("aggregate", {}).get("curve", []) if arm.online else []
     row = {
         "arm": arm,
         "start": data["controls"]["bc_start"],
         "tests": tests,
         "mean": sum(tests) / len(tests),
         "curve": curve,
-        "env_steps": max((c["env_steps"] for c in curve), default=0) if online else _data_steps(block),
+        "env_steps": max((c["env_steps"] for c in curve), default=0) if arm.online else _data_steps(block),
     }
     if arm.baseline:
         name, key = arm.baseline
@@ -182,9 +185,14 @@ def _points(diff: float) -> str:
     return f"{round(100 * diff):+d}"
 
 
+def _any_saved(results: Path, headline: dict[str, list[Arm]]) -> bool:
+    """Whether any file the headline names is saved (none: a fresh results folder)."""
+    return any((results / a.file).is_file() for arms in headline.values() for a in arms)
+
+
 def overview_table(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> str | None:
     """The markdown table of :data:`HEADLINE`, or None when none of its files is saved (a fresh folder)."""
-    if not any((results / a.file).is_file() for arms in headline.values() for a in arms):
+    if not _any_saved(results, headline):
         return None
     lines = [
         "| start (its test) | arm (its file: `finetune_online_<name>.json`) | seeds | env steps "
@@ -195,9 +203,9 @@ def overview_table(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> 
         start_test = rows[0]["start"]["test"]["success_once"]
         for i, r in enumerate(rows):
             steps = r["env_steps"]
-            if r["arm"].key.startswith("controls.") and steps is None:
+            if not r["arm"].online and steps is None:
                 steps_text = "0"
-            elif r["arm"].key.startswith("controls."):
+            elif not r["arm"].online:
                 steps_text = f"{_k(steps)} of replays"
             else:
                 steps_text = _k(steps)
@@ -229,7 +237,7 @@ def figure_paths(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> li
 
 def overview_figures(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> list[Path]:
     """One figure per start (see the module's docstring); the paths written, none on a fresh folder."""
-    if overview_table(results, headline) is None:
+    if not _any_saved(results, headline):
         return []
     import matplotlib
 
@@ -237,6 +245,7 @@ def overview_figures(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -
     import matplotlib.pyplot as plt
 
     written = []
+    paths = dict(zip(headline, figure_paths(results, headline)))
     for start, rows in _rows(results, headline).items():
         fig, ax = plt.subplots(figsize=(7.5, 4.2))
         ax.axhline(rows[0]["start"]["test"]["success_once"], color="grey", lw=1.5, label="BC start (test)")
@@ -283,8 +292,7 @@ def overview_figures(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -
         ax.grid(alpha=0.3)
         ax.legend(fontsize=6.5, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         fig.tight_layout(rect=(0, 0.04, 1, 1))
-        path = results / f"finetune_overview_{_slug(start)}.png"  # as figure_paths names it
-        fig.savefig(path, dpi=110)
+        fig.savefig(paths[start], dpi=110)
         plt.close(fig)
-        written.append(path)
+        written.append(paths[start])
     return written
