@@ -41,6 +41,8 @@ class Arm:
 _CAN_C = "finetune_online_robosuite_can_mixed30c_"
 _CAN_CBC = (f"{_CAN_C}continued_bc.json", "controls.continued_bc")
 _PICK = "finetune_online_maniskill_pickcube_mixed50b_filtered_bc_an0p02_mask_100k.json"
+_PICK_C = "finetune_online_maniskill_pickcube_mixed50c_"
+_PICK_C_CBC = (f"{_PICK_C}continued_bc.json", "controls.continued_bc")
 _SQUARE_CBC = ("finetune_online_robosuite_square50_continued_bc_8k.json", "controls.continued_bc")
 
 #: start -> its arms. Every arm of a start must share the start's run and test figure (checked): rows
@@ -54,6 +56,21 @@ HEADLINE: dict[str, list[Arm]] = {
             (_PICK, "controls.continued_bc"),
         ),
         Arm("continued BC, 8,000 updates", _PICK, "controls.continued_bc"),
+    ],
+    "PickCube (50 mixed episodes, a later start)": [
+        Arm(
+            "QC, flow frozen, best of 8, online",
+            f"{_PICK_C}qc_frozen_100k.json",
+            "algorithms.qc",
+            _PICK_C_CBC,
+        ),
+        Arm(
+            "QC's TD-only arm, 11,500 updates",
+            f"{_PICK_C}qc_frozen_100k.json",
+            "controls.qc_offline",
+            _PICK_C_CBC,
+        ),
+        Arm("continued BC, 8,000 updates", *_PICK_C_CBC),
     ],
     "PickCube (25 expert episodes)": [
         Arm(
@@ -82,7 +99,12 @@ HEADLINE: dict[str, list[Arm]] = {
             "algorithms.filtered_bc",
         ),
         Arm("QC, flow frozen, best of 8, online", f"{_CAN_C}qc_frozen_100k.json", "algorithms.qc", _CAN_CBC),
-        Arm("QC's TD-only arm, 11,540 updates", f"{_CAN_C}qc_frozen_100k.json", "controls.qc_offline"),
+        Arm(
+            "QC's TD-only arm, 11,540 updates",
+            f"{_CAN_C}qc_frozen_100k.json",
+            "controls.qc_offline",
+            _CAN_CBC,
+        ),
         Arm("FQL online (3,000 offline updates first)", f"{_CAN_C}fql_50k.json", "algorithms.fql"),
         Arm("FQL's TD-only arm, 5,240 updates", f"{_CAN_C}fql_50k.json", "controls.fql_offline"),
     ],
