@@ -47,13 +47,16 @@ from benchmarks.sweep import mean_and_spread
 CPU_BUDGET: dict[str, list[str]] = {
     # an update with 32 proposals at batch 256 takes 14-34 s here (N=8: 3 s): N=8 and 1 update per 20 steps
     "qc": ["finetune.qc.num_samples=8", "online.updates_per_step=0.05"],
-    # an update takes 0.77 s (BC + the 2-NFE teacher): 1 update per 4 env steps
-    "fql": ["online.updates_per_step=0.25"],
+    # an update (BC + the 2-NFE teacher + mu) takes 0.6 s at batch 128, 1.2 s at 256 (Intel Xeon core):
+    # 3,000 offline updates, then 1 per 20 env steps, fit 100k env steps in the 2-hour cap (PickCube
+    # mixed50c: 102 min; finetune_online_maniskill_pickcube_mixed50c_fql_100k.json)
+    "fql": ["offline.steps=3000", "online.updates_per_step=0.05", "finetune.batch_size=128"],
     # an update takes 0.09 s (no flow call): the preset's 0.25 updates per env step (2 per chunk decision)
     "dsrl": [],
     # an update decodes the actor's noise twice (the bootstrap's w' and the distillation's w): 0.7-1.1 s
     # at batch 256 with one decode, 0.16-0.29 s at 128: batch 128 and the 8,000 updates of the
-    # filtered-BC and continued-BC arms
+    # filtered-BC and continued-BC arms (AMD EPYC; on an Intel Xeon core ~0.8 s: PickCube mixed50c ran
+    # at 0.042 to fit the cap)
     "dsrl_na": ["finetune.batch_size=128", "online.updates_per_step=0.084"],
     "filtered_bc": [],  # an L1 Flow step at batch 64 (~0.1 s), 0.084 per env step
 }

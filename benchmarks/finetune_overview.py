@@ -70,6 +70,24 @@ HEADLINE: dict[str, list[Arm]] = {
             "controls.qc_offline",
             _PICK_C_CBC,
         ),
+        Arm(
+            "FQL online (3,000 offline updates first, batch 128)",
+            f"{_PICK_C}fql_100k.json",
+            "algorithms.fql",
+            _PICK_C_CBC,
+        ),
+        Arm(
+            "DSRL-NA online (0.042 updates per env step)",
+            f"{_PICK_C}dsrl_na_100k.json",
+            "algorithms.dsrl_na",
+            _PICK_C_CBC,
+        ),
+        Arm(
+            "DSRL-NA's TD-only arm, 4,000 updates",
+            f"{_PICK_C}dsrl_na_100k.json",
+            "controls.dsrl_na_offline",
+            _PICK_C_CBC,
+        ),
         Arm("continued BC, 8,000 updates", *_PICK_C_CBC),
     ],
     "PickCube (25 expert episodes)": [
