@@ -76,7 +76,9 @@ HEADLINE: dict[str, list[Arm]] = {
             "algorithms.fql",
             _PICK_C_CBC,
         ),
-        Arm("FQL's TD-only arm, 7,750 updates", f"{_PICK_C}fql_100k.json", "controls.fql_offline", _PICK_C_CBC),
+        Arm(
+            "FQL's TD-only arm, 7,750 updates", f"{_PICK_C}fql_100k.json", "controls.fql_offline", _PICK_C_CBC
+        ),
         Arm(
             "DSRL-NA online (0.042 updates per env step)",
             f"{_PICK_C}dsrl_na_100k.json",
