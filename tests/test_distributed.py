@@ -33,12 +33,21 @@ def _torchrun(args: list[str], cwd, timeout: float = 240) -> subprocess.Complete
 
 
 _SCRIPT = """
-import json, sys, time
+import json, os, sys, time
 from datetime import timedelta
 import torch.distributed as dist
 from l1flow_rl.workspace.distributed import (
     RankFailedError, init_distributed, raise_if_any_failed, run_on_every_rank, run_on_rank0,
 )
+
+# The ranks meet on torchrun's store first: the 3 s timeout below also bounds the group's own
+# connection, which a rank that starts seconds after the other (a loaded CI machine) would miss.
+store = dist.TCPStore(
+    os.environ["MASTER_ADDR"], int(os.environ["MASTER_PORT"]), is_master=False,
+    timeout=timedelta(seconds=120),
+)
+store.set(f"started/{{os.environ['RANK']}}", "1")
+store.wait([f"started/{{r}}" for r in range(int(os.environ["WORLD_SIZE"]))])
 
 # A default group whose timeout (3 s) is far shorter than rank 0's work below (6 s).
 dist.init_process_group("gloo", timeout=timedelta(seconds=3))
