@@ -147,6 +147,13 @@ def last_weights_control(finished: dict[int, Path], args) -> dict | None:
     last = {s: d.with_name(f"{d.name}_last") for s, d in finished.items()}
     for s, out_dir in last.items():
         if not (out_dir / "eval.json").is_file() and not args.collect_only:
+            if not (finished[s] / "checkpoints" / "latest.pt").is_file():
+                # a run restored by benchmarks.archive keeps its records, not its checkpoints
+                print(
+                    f"{finished[s]} has no checkpoints/latest.pt (a restored record?): "
+                    "its last weights are not tested"
+                )
+                continue
             cmd = last_weights_eval_cmd(args, finished[s], out_dir)
             with open(out_dir.parent / f"{out_dir.name}.log", "a") as log:
                 if subprocess.run(cmd, stdout=log, stderr=log).returncode != 0:

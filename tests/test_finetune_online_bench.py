@@ -189,6 +189,19 @@ def test_last_weights_are_collected_per_seed_and_an_untested_seed_is_left_out(tm
     assert last_weights_control({2: finished[2]}, args) is None
 
 
+def test_a_restored_run_without_checkpoints_is_named_and_its_last_weights_are_not_tested(tmp_path, capsys):
+    # benchmarks.archive restores a finished run's records, not its checkpoints: no eval is launched
+    import argparse
+
+    run = tmp_path / "task_continued_bc_seed0"
+    run.mkdir()
+    (run / "eval.json").write_text(json.dumps({"success_once": 0.34, "episodes": 100}))
+    args = argparse.Namespace(collect_only=False, task="robosuite_can", test_episodes=100)
+    assert last_weights_control({0: run}, args) is None
+    assert f"{run} has no checkpoints/latest.pt" in capsys.readouterr().out
+    assert not (tmp_path / "task_continued_bc_seed0_last.log").exists()  # no eval was started
+
+
 def test_a_run_on_shifted_replays_reports_what_making_its_data_cost(tmp_path):
     import h5py
 
