@@ -1,6 +1,6 @@
-"""Latency of the deployable policy (``l1flow_rl.export``) against the eager actor, per chunk, on CPU at
-batch 1 and in the same run: what a robot gains or pays by running the exported program instead of
-the library.
+"""Latency of the deployable policy (``l1flow_rl.export.program``) against the eager actor, per
+chunk, on CPU at batch 1 and in the same run: what a robot gains or pays by running the exported
+program instead of the library.
 
 Networks: the state UNet ``l1flow-rl train`` builds by default (ConditionalUnet1D 64/128/256, D=35,
 A=4, To=2, H=16, K=8) and, with ``--network image`` or ``both``, the image task's (ResNet-18 GroupNorm
@@ -33,9 +33,9 @@ from tensordict import TensorDict
 
 from benchmarks.bench_latency import ACTION_DIM, OBS_DIM, _image_setup
 from benchmarks.common import format_table, interleaved, machine_info, save_results
-from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.config import PolicyConfig
-from l1flow_rl.export import export_onnx, export_program, load_program
+from l1flow_rl.export.program import export_onnx, export_program, load_program
+from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.workspace.build import build_actor
 
 RESULTS = Path(__file__).parent / "results" / "export_latency.json"

@@ -37,7 +37,7 @@ from torchrl.objectives import SoftUpdate
 
 from benchmarks.bench_env_throughput import measure, policy_in_loop, raw_in_process
 from benchmarks.common import format_table, interleaved, machine_info, save_results
-from l1flow_rl.cli import compose_config
+from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.config import PolicyConfig, load_task_config
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.workspace.build import build_actor

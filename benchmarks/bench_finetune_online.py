@@ -77,7 +77,7 @@ def finetune_cmd(
     return [
         sys.executable,
         "-m",
-        "l1flow_rl.cli",
+        "l1flow_rl.commands.cli",
         "finetune",
         f"finetune={preset}",
         f"checkpoint={args.checkpoint}",
@@ -131,7 +131,7 @@ def last_weights_eval_cmd(args, control_dir: Path, out_dir: Path) -> list[str]:
     return [
         sys.executable,
         "-m",
-        "l1flow_rl.cli",
+        "l1flow_rl.commands.cli",
         "eval",
         f"checkpoint={control_dir / 'checkpoints' / 'latest.pt'}",
         f"task={args.task}",

@@ -33,8 +33,8 @@ from pathlib import Path
 import torch
 
 from benchmarks.common import machine_info, save_results
-from l1flow_rl.cli import compose_config
-from l1flow_rl.ema import make_ema
+from l1flow_rl.commands.cli import compose_config
+from l1flow_rl.modules.ema import make_ema
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
 from l1flow_rl.workspace.dataset import load_task_episodes

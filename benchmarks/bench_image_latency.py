@@ -23,7 +23,7 @@ if __package__ in (None, ""):  # run as a script
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import format_table, interleaved, machine_info, save_results
-from l1flow_rl.cli import compose_config
+from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.workspace.build import build_actor
 
 STATE_DIM, ACTION_DIM, SIDE = 25, 4, 128  # ManiSkill PushCube rgb

@@ -29,7 +29,7 @@ if __package__ in (None, ""):  # run as a script
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.common import format_table, interleaved, machine_info, save_results
-from l1flow_rl.cli import compose_config
+from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.data import make_chunk_buffer
 from l1flow_rl.workspace.build import build_actor, build_loss
 from l1flow_rl.workspace.trainer import Trainer

@@ -74,7 +74,7 @@ def _image_setup(quick: bool = False) -> tuple[dict, dict, dict]:
     from omegaconf import OmegaConf
 
     from benchmarks.bench_image_latency import SIDE, STATE_DIM
-    from l1flow_rl.cli import compose_config
+    from l1flow_rl.commands.cli import compose_config
 
     overrides = [f"task={IMAGE_TASK}", "encoder=resnet18_gn"]
     cfg = compose_config([*overrides, *(["policy.down_dims=[16,32]"] if quick else [])])

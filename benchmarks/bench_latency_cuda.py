@@ -36,9 +36,9 @@ if __package__ in (None, ""):  # run as a script
 from benchmarks.bench_latency import OBS_DIM, _floor_call, diffusers_calls
 from benchmarks.bench_latency import build_actor as build_state_actor
 from benchmarks.common import format_table, interleaved, machine_info, save_results
-from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.config import PolicyConfig
-from l1flow_rl.value_checks import skip_value_checks
+from l1flow_rl.modules.actor import L1FlowActor
+from l1flow_rl.utils.value_checks import skip_value_checks
 from l1flow_rl.workspace.build import build_actor
 
 NO_CUDA = (

@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
             cmd = [
                 sys.executable,
                 "-m",
-                "l1flow_rl.cli",
+                "l1flow_rl.commands.cli",
                 "train",
                 f"data_dir={data_dir}",
                 f"run_dir={run_dir}",

@@ -1,6 +1,6 @@
 """Multi-modality, measured: how each method splits its samples over 2, 4 and 8 demonstrated modes.
 
-Every family of the toy (``l1flow_rl.toy``: opposite sines (2), nested amplitudes (4), phase shifts
+Every family of the toy (``l1flow_rl.commands.toy``: opposite sines (2), nested amplitudes (4), phase shifts
 (8)) is trained with L1 Flow (and evaluated at 2 NFE, at other t_first, and under x-prediction
 Euler-10 without retraining), L1 Flow with uniform t, v-prediction flow matching (10 and 2 Euler
 steps) and L1 regression, on the same small UNet and the same data stream. Per evaluation: the share
@@ -21,8 +21,8 @@ import torch
 from omegaconf import OmegaConf
 
 from benchmarks.common import format_table, machine_info, save_results
+from l1flow_rl.commands.toy import MODE_FAMILIES, TOY_METHODS, toy_modes, train_and_evaluate
 from l1flow_rl.config import ToyConfig
-from l1flow_rl.toy import MODE_FAMILIES, TOY_METHODS, toy_modes, train_and_evaluate
 
 __all__ = ["main"]
 
@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\n{family} ({modes.shape[0]} modes), {args.steps} steps per method:")
         print(format_table(rows, ["evaluation", "nfe", "modes hit", "off-mode", "balance"]))
         if not args.quick:
-            from l1flow_rl.toy_plot import plot_toy
+            from l1flow_rl.commands.toy_plot import plot_toy
 
             plot_toy(modes, samples, report["methods"], Path(args.figures) / f"multimodal_{family}.png")
     figures["seconds"] = round(time.perf_counter() - start, 1)

@@ -40,7 +40,7 @@ from torch import Tensor
 
 from benchmarks.common import machine_info, save_results
 from benchmarks.finetune_report import render_noise_authority
-from l1flow_rl.policy import ChunkPolicy
+from l1flow_rl.modules.policy import ChunkPolicy
 
 __all__ = ["BOUND", "WIDE_STD", "action_groups", "noise_authority", "parse_checkpoints"]
 

@@ -28,7 +28,7 @@ import torch
 from tensordict import TensorDictBase
 
 from benchmarks.common import format_table, machine_info, save_results
-from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.modules.actor import L1FlowActor
 
 #: extra samplers read from the same checkpoint: method -> (label, sampler name, kwargs)
 RESCORED = {"ddpm": ("ddpm_ddim16", "ddim", {"steps": 16})}

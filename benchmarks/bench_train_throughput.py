@@ -44,9 +44,9 @@ if __package__ in (None, ""):  # run as a script
 
 from benchmarks.bench_image_train import resident_batch
 from benchmarks.common import format_table, interleaved, machine_info, save_results
-from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.config import PolicyConfig
 from l1flow_rl.data import make_chunk_buffer
+from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.workspace.build import build_actor, build_loss
 from l1flow_rl.workspace.trainer import Trainer
 

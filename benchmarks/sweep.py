@@ -61,7 +61,7 @@ def _cli(args: Sequence[str], log: Path, env: dict[str, str] | None = None) -> i
         out.write("\n$ l1flow-rl " + " ".join(args) + "\n")
         out.flush()
         proc = subprocess.run(
-            [sys.executable, "-m", "l1flow_rl.cli", *args],
+            [sys.executable, "-m", "l1flow_rl.commands.cli", *args],
             stdout=out,
             stderr=subprocess.STDOUT,
             env={**os.environ, **(env or {})},

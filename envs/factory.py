@@ -11,7 +11,7 @@ from tensordict.utils import NestedKey
 from torchrl.envs import CatFrames, Compose, InitTracker, TransformedEnv, UnsqueezeTransform
 
 from l1flow_rl.config import TaskConfig, load_task_config
-from l1flow_rl.device import resolve_device
+from l1flow_rl.utils.device import resolve_device
 
 __all__ = ["history_transforms", "make_env", "resolve_device"]
 

@@ -26,7 +26,7 @@ import torch
 from tensordict import TensorDict
 
 from l1flow_rl import L1FlowActor
-from l1flow_rl.pretrained import read_pretrained_config
+from l1flow_rl.export.pretrained import read_pretrained_config
 
 
 def synthetic_stream(config: dict, steps: int, seed: int = 0) -> Iterator[dict[str, torch.Tensor]]:

@@ -7,12 +7,14 @@ Quick use::
     loss_fn = L1FlowLoss(actor)
 """
 
-from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.best_of_n_actor import BestOfNActor
-from l1flow_rl.ema import dp_ema_decay, make_ema
 from l1flow_rl.evaluation import evaluate
-from l1flow_rl.noise_actor import NoiseActor
-from l1flow_rl.normalizer import Normalizer, NormalizerDict
+from l1flow_rl.finetune.best_of_n_actor import BestOfNActor
+from l1flow_rl.finetune.noise_actor import NoiseActor
+from l1flow_rl.finetune.one_step_actor import OneStepActor
+from l1flow_rl.modules.actor import L1FlowActor
+from l1flow_rl.modules.ema import dp_ema_decay, make_ema
+from l1flow_rl.modules.normalizer import Normalizer, NormalizerDict
+from l1flow_rl.modules.policy import ChunkPolicy
 from l1flow_rl.objectives import (
     ChunkCriticLoss,
     DiffusionLoss,
@@ -25,8 +27,6 @@ from l1flow_rl.objectives import (
     QCLoss,
     RegressionLoss,
 )
-from l1flow_rl.one_step_actor import OneStepActor
-from l1flow_rl.policy import ChunkPolicy
 
 __all__ = [
     "BestOfNActor",

@@ -27,7 +27,7 @@ def ctrl_c_after_the_progress_bar(overrides: list[str], unit: str, settle_s: flo
     """Run ``l1flow-rl demos OVERRIDES``, send SIGINT to its process group ``settle_s`` after the bar
     (whose text holds ``unit``) appears, check the outcome above, and return its stderr."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "l1flow_rl.cli", "demos", *overrides],
+        [sys.executable, "-m", "l1flow_rl.commands.cli", "demos", *overrides],
         stdout=subprocess.DEVNULL,  # never read: a pipe could fill and block the command
         stderr=subprocess.PIPE,
         start_new_session=True,

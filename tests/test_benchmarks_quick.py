@@ -527,7 +527,7 @@ def test_open_loop_error_reads_each_runs_checkpoint_on_the_same_windows(tmp_path
     from test_envs_point_mass import TASK_OVERRIDES
 
     from benchmarks import bench_open_loop
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     root = tmp_path / "grid"
     for method in ("l1flow", "ddpm"):

@@ -125,7 +125,7 @@ def test_loading_weights_into_another_network_says_what_differs():
 def _train_config(**changes):
     from omegaconf import OmegaConf
 
-    from l1flow_rl.cli import compose_config
+    from l1flow_rl.commands.cli import compose_config
 
     cfg = compose_config(["run_dir=runs/x"])
     for key, value in changes.items():

@@ -13,7 +13,7 @@ import pytest
 import torch
 from doubles.point_mass import TASK_OVERRIDES
 
-from l1flow_rl.cli import main
+from l1flow_rl.commands.cli import main
 from l1flow_rl.errors import CheckpointReadError
 
 TESTS = Path(__file__).parent

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from l1flow_rl.cli import COMMANDS, compose_config, main
+from l1flow_rl.commands.cli import COMMANDS, compose_config, main
 from l1flow_rl.config import load_task_config, task_names
 
 

@@ -114,7 +114,8 @@ def test_core_install_imports_and_trains_without_extras(tmp_path):
 
 def test_core_install_composes_and_validates_the_cli_config(tmp_path):
     proc = _run_core(
-        "from l1flow_rl.cli import main\nraise SystemExit(main(['train', 'policy=ddpm', '--cfg', 'job']))",
+        "from l1flow_rl.commands.cli import main\n"
+        "raise SystemExit(main(['train', 'policy=ddpm', '--cfg', 'job']))",
         tmp_path,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]

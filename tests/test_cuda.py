@@ -204,7 +204,7 @@ def test_train_job_on_cuda_then_eval_of_its_checkpoint_on_cpu(tmp_path, env_devi
     from doubles.point_mass import POINT_MASS_TASK  # noqa: F401  (registers the double)
     from test_envs_point_mass import TASK_OVERRIDES
 
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     run_dir = tmp_path / "run"
     common = [*TASK_OVERRIDES, "eval.num_envs=2"]
@@ -241,7 +241,7 @@ def test_finetune_online_on_cuda_steps_envs_in_cpu_workers(tmp_path):
     pytest.importorskip("mani_skill")
     from test_finetune_job import BC, FT
 
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
     from l1flow_rl.workspace.checkpoint import load_checkpoint
 
     data, bc_dir, ft_dir = tmp_path / "data", tmp_path / "bc", tmp_path / "ft"

@@ -103,7 +103,7 @@ def test_a_second_expert_for_one_simulator_is_refused(reach_expert):
 
 
 def test_cli_reports_a_missing_expert(capsys, tmp_path):
-    from l1flow_rl.experts.cli import run_demos
+    from l1flow_rl.commands.demos import run_demos
 
     cfg = OmegaConf.structured(AppConfig)
     cfg.task.simulator, cfg.data_dir = "nosuchsim", str(tmp_path)

@@ -336,7 +336,7 @@ def test_empty_episode_and_unknown_option(tmp_path):
 
 
 def test_unknown_task_name_is_refused(capsys):
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     assert main(["demos", "task=maniskill_nosuchtask", "demos.num=1"]) == 2
     assert "maniskill_nosuchtask" in capsys.readouterr().err

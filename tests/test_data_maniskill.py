@@ -148,7 +148,7 @@ def test_cache_is_reused_and_generation_resumes(pushcube, monkeypatch):
 
 
 def test_cli_prints_the_dataset_path(pushcube, capsys):
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     path, data_dir, _ = pushcube
     assert main(["demos", "task=maniskill_pushcube", "demos.num=3", f"data_dir={data_dir}"]) == 0

@@ -274,7 +274,7 @@ def test_terminated_episodes_only_gives_windows_of_successful_episodes_alone():
 
 
 def test_filtered_bc_buffers_drop_the_demonstrations_that_fail_and_count_them():
-    from l1flow_rl.cli import compose_config
+    from l1flow_rl.commands.cli import compose_config
     from l1flow_rl.workspace.rl_data import RLBuffers
 
     cfg = compose_config(
@@ -310,7 +310,7 @@ def test_a_resumed_online_buffer_refuses_a_prefetch_pickle_that_names_code(tmp_p
     # TorchRL's ReplayBuffer.loads unpickles prefetch.pkl with plain pickle.load
     import pickle
 
-    from l1flow_rl.cli import compose_config
+    from l1flow_rl.commands.cli import compose_config
     from l1flow_rl.errors import CheckpointReadError
     from l1flow_rl.workspace.rl_data import RLBuffers
 

@@ -6,7 +6,7 @@ import pytest
 import torch
 from l1flow_rl.envs import resolve_device as from_envs
 
-from l1flow_rl.device import resolve_device
+from l1flow_rl.utils.device import resolve_device
 from l1flow_rl.workspace.distributed import resolve_device as from_jobs
 
 

@@ -111,7 +111,14 @@ def test_train_under_torchrun_ends_both_ranks_with_rank0s_error(tmp_path):
     pytest.importorskip("mani_skill", reason="the task's expert is ManiSkill's motion planner")
     bad = "/proc/no_such_dir/demos"  # /proc refuses new directories, even to root
     proc = _torchrun(
-        ["-m", "l1flow_rl.cli", "train", f"data_dir={bad}", f"run_dir={tmp_path / 'run'}", "device=cpu"],
+        [
+            "-m",
+            "l1flow_rl.commands.cli",
+            "train",
+            f"data_dir={bad}",
+            f"run_dir={tmp_path / 'run'}",
+            "device=cpu",
+        ],
         cwd=tmp_path,
     )
     assert proc.returncode != 0

@@ -120,7 +120,7 @@ def test_evaluate_runs_the_double_and_its_metrics_equal_counts_by_hand():
 
 
 def test_l1flow_rl_train_on_the_double_writes_eval_json(tmp_path):
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     run_dir, data_dir = tmp_path / "run", tmp_path / "data"
     args = [

@@ -250,7 +250,7 @@ import json
 import multiprocessing
 import sys
 
-from l1flow_rl.cli import main
+from l1flow_rl.commands.cli import main
 
 if __name__ == "__main__":
     for args in json.loads(sys.argv[1]):

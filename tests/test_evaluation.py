@@ -258,7 +258,7 @@ def test_video_of_the_first_episode(tmp_path):
 def test_cli_eval_writes_eval_json(tmp_path):
     from omegaconf import OmegaConf
 
-    from l1flow_rl.cli import compose_config, main
+    from l1flow_rl.commands.cli import compose_config, main
     from l1flow_rl.workspace.build import build_actor
     from l1flow_rl.workspace.checkpoint import save_checkpoint
 

@@ -146,7 +146,7 @@ def test_wandb_takes_project_group_and_run_name_from_the_config(tmp_path):
 @pytest.mark.slow  # about a minute: demos, training, three evaluations
 def test_training_picks_the_checkpoint_on_validation_seeds_and_reports_test_seeds(tmp_path):
     pytest.importorskip("mani_skill")
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     run_dir = tmp_path / "run"
     args = [
@@ -184,7 +184,7 @@ def test_training_picks_the_checkpoint_on_validation_seeds_and_reports_test_seed
 
 
 def test_selection_takes_the_earliest_or_latest_best_validation_and_the_final_model_without_one():
-    from l1flow_rl.cli import compose_config
+    from l1flow_rl.commands.cli import compose_config
     from l1flow_rl.workspace.evaluator import PeriodicEvaluator
 
     evaluator = PeriodicEvaluator(compose_config(["eval.val_episodes=5"]), torch.device("cpu"))
@@ -211,7 +211,7 @@ def test_validation_can_use_a_cheaper_sampler_of_the_same_network(tmp_path):
     """eval.val_sampler: a DDPM-100 run validated under DDIM-4 (curve, checkpoint choice); its test
     figures keep DDPM-100. The counted network evaluations per chunk say which sampler scored what."""
     pytest.importorskip("mani_skill")
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     run_dir = tmp_path / "run"
     args = [
@@ -251,7 +251,7 @@ def test_validation_can_use_a_cheaper_sampler_of_the_same_network(tmp_path):
     ],
 )
 def test_a_validation_sampler_that_cannot_work_fails_at_config_time(overrides, message):
-    from l1flow_rl.cli import compose_config
+    from l1flow_rl.commands.cli import compose_config
     from l1flow_rl.config.validate import ConfigValidationError, validate_config
 
     with pytest.raises(ConfigValidationError, match=re.escape(message)):

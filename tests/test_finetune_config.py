@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from omegaconf import OmegaConf
 
-from l1flow_rl.cli import compose_config
+from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.config.validate import ConfigValidationError
 from l1flow_rl.objectives import DSRLLoss, DSRLNALoss, FQLLoss, QCLoss
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS

@@ -13,8 +13,8 @@ import torch
 pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
 
 from l1flow_rl import BestOfNActor, NoiseActor
-from l1flow_rl.cli import main
-from l1flow_rl.proposal_cache import ProposalCache
+from l1flow_rl.commands.cli import main
+from l1flow_rl.finetune.proposal_cache import ProposalCache
 from l1flow_rl.workspace import finetune as finetune_job
 from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_actor, load_checkpoint
 

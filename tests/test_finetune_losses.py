@@ -20,8 +20,8 @@ from l1flow_rl import (
     QCLoss,
 )
 from l1flow_rl.data import make_chunk_buffer
+from l1flow_rl.finetune.proposal_cache import ProposalCache
 from l1flow_rl.networks.critic import ChunkCritic
-from l1flow_rl.proposal_cache import ProposalCache
 
 H_EXEC = 4
 

@@ -224,7 +224,7 @@ def test_the_td_only_arm_is_the_algorithms_preset_and_budget_on_the_demonstratio
     algorithm's own preset and CPU budget with no env step, is extended like the continued-BC control,
     and shows in the table as a seeded control at its update counts."""
     from benchmarks.bench_finetune_online import at_asked_length, offline_only_cmd
-    from l1flow_rl.cli import compose_config
+    from l1flow_rl.commands.cli import compose_config
 
     args = argparse.Namespace(
         checkpoint="bc.pt",

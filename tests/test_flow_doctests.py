@@ -8,13 +8,13 @@ import importlib
 import pytest
 
 MODULES = [
-    "l1flow_rl.actor",
-    "l1flow_rl.best_of_n_actor",
+    "l1flow_rl.modules.actor",
+    "l1flow_rl.finetune.best_of_n_actor",
     "l1flow_rl.networks.critic",
-    "l1flow_rl.noise_actor",
-    "l1flow_rl.one_step_actor",
-    "l1flow_rl.ema",
-    "l1flow_rl.export",
+    "l1flow_rl.finetune.noise_actor",
+    "l1flow_rl.finetune.one_step_actor",
+    "l1flow_rl.modules.ema",
+    "l1flow_rl.export.program",
     "l1flow_rl.flow.time",
     "l1flow_rl.objectives.chunk_critic",
     "l1flow_rl.objectives.diffusion",
@@ -27,8 +27,8 @@ MODULES = [
     "l1flow_rl.objectives.l1flow",
     "l1flow_rl.objectives.qc",
     "l1flow_rl.objectives.regression",
-    "l1flow_rl.pretrained",
-    "l1flow_rl.proposal_cache",
+    "l1flow_rl.export.pretrained",
+    "l1flow_rl.finetune.proposal_cache",
 ]
 
 

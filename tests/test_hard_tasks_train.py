@@ -42,7 +42,7 @@ CASES = [
 @pytest.mark.parametrize(("task", "options", "max_steps"), CASES)
 def test_train_end_to_end(task, options, max_steps, tmp_path):
     pytest.importorskip("robosuite" if task.startswith("robosuite") else "mani_skill")
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     run = tmp_path / "run"
     args = ["train", f"task={task}", "demos.num=3", "train.steps=20", "eval.episodes=1", "eval.num_envs=1"]

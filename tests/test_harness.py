@@ -13,7 +13,7 @@ from doubles.point_mass.env import OBS_DIM, expert_action
 from tensordict import TensorDict
 
 from l1flow_rl import L1FlowActor, L1FlowLoss
-from l1flow_rl.cli import compose_config
+from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.errors import RunDirectoryError, RunDivergedError
 from l1flow_rl.workspace.checkpoint import ResumeMismatchError, first_non_finite, load_checkpoint
 from l1flow_rl.workspace.harness import Run

@@ -10,7 +10,7 @@ import pytest
 import torch
 from tensordict import MemoryMappedTensor
 
-from l1flow_rl.cli import compose_config, main
+from l1flow_rl.commands.cli import compose_config, main
 from l1flow_rl.config import load_task_config
 from l1flow_rl.data import load_episodes, make_chunk_buffer
 from l1flow_rl.networks.encoders import ImageObservationEncoder

@@ -96,10 +96,11 @@ def _named(node: ast.Import | ast.ImportFrom, module: str, is_package: bool, kno
 
 
 def imports_of(
-    module: str, path: Path, known: set[str]
+    module: str, path: Path, known: set[str], typing: bool = False
 ) -> tuple[set[str], dict[str, int], set[str], dict[int, str]]:
     """(module-level targets with their packages, {function-level named target: first line},
-    module-level third-party top-level names, {line: third-party top-level name} inside functions)."""
+    module-level third-party top-level names, {line: third-party top-level name} inside functions).
+    ``typing``: count the imports under ``if TYPE_CHECKING:`` as module level too."""
     tree = ast.parse(path.read_text(), filename=str(path))
     is_package = path.name == "__init__.py"
     top: set[str] = set()
@@ -110,7 +111,7 @@ def imports_of(
     def visit(node: ast.AST, in_function: bool) -> None:
         for child in ast.iter_child_nodes(node):
             if isinstance(child, ast.If) and _is_type_checking(child):
-                for sub in child.orelse:
+                for sub in (*child.body, *child.orelse) if typing else child.orelse:
                     visit_stmt(sub, in_function)
                 continue
             visit_stmt(child, in_function)
@@ -137,16 +138,18 @@ def imports_of(
 
 
 @functools.cache
-def import_graph() -> tuple[dict[str, set[str]], dict[tuple[str, str], str], dict[str, set[str]]]:
+def import_graph(
+    typing: bool = False,
+) -> tuple[dict[str, set[str]], dict[tuple[str, str], str], dict[str, set[str]]]:
     """(module-level graph, {(importer, imported): "path:line"} of function-level imports, each
-    module's module-level third-party imports)."""
+    module's module-level third-party imports). ``typing``: with the type-checking-only imports."""
     files = module_files()
     known = set(files)
     graph: dict[str, set[str]] = {}
     inner: dict[tuple[str, str], str] = {}
     external: dict[str, set[str]] = {}
     for module, path in files.items():
-        graph[module], found, external[module], _ = imports_of(module, path, known)
+        graph[module], found, external[module], _ = imports_of(module, path, known, typing)
         for target, line in found.items():
             inner[(module, target)] = f"{path.relative_to(ROOT)}:{line}"
     return graph, inner, external
@@ -248,7 +251,7 @@ def _cycle_path(graph: dict[str, set[str]], component: set[str]) -> list[str]:
 def test_the_walk_sees_the_package():
     graph, inner, external = import_graph()
     assert "l1flow_rl.envs.registry" in graph and "l1flow_rl.config.validate" in graph
-    assert "l1flow_rl.actor" in graph["l1flow_rl.workspace.build"]
+    assert "l1flow_rl.modules.actor" in graph["l1flow_rl.workspace.build"]
     # a child's import runs its package's __init__ first: an edge to the package too
     assert {"l1flow_rl.evaluation", "l1flow_rl.evaluation.protocols"} <= graph[
         "l1flow_rl.envs.pusht.protocol"
@@ -277,6 +280,20 @@ def test_no_import_cycle_among_modules():
     assert not cycles, "import cycles through function-level imports:\n" + "\n".join(
         " -> ".join(c) for c in cycles
     )
+
+
+def test_deployment_and_modules_layers_have_no_cycle_even_for_type_checkers():
+    """The deployment package sits above the modules: ``export`` may import ``modules``, never the
+    reverse through a circle, not even one that only type checkers follow (the actor reads folders
+    through ``export.folder``, which names the actor by its base class)."""
+    graph, _, _ = import_graph(typing=True)
+    layers = ("l1flow_rl.export", "l1flow_rl.modules")
+    sub = {m: {t for t in ts if t.startswith(layers)} for m, ts in graph.items() if m.startswith(layers)}
+    cycles = find_cycles(sub)
+    assert not cycles, "cycles among export/ and modules/ (type-checking imports counted):\n" + "\n".join(
+        " -> ".join(c) for c in cycles
+    )
+    assert find_cycles({"a": {"b"}, "b": {"a"}}), "the check must see a two-module circle"
 
 
 def test_function_level_imports_of_own_modules_are_allowed_ones():

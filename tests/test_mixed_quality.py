@@ -79,8 +79,8 @@ def test_config_names_unknown_labels_and_qualities():
 
 
 def test_a_task_whose_expert_makes_no_mixed_set_is_refused():
+    from l1flow_rl.commands.demos import demo_options
     from l1flow_rl.experts import DemoGenerationError
-    from l1flow_rl.experts.cli import demo_options
 
     cfg = OmegaConf.structured(AppConfig)
     cfg.demos.quality = "mixed"

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from benchmarks.bench_noise_authority import BOUND, STATISTICS, action_groups, main, noise_authority
-from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.flow.samplers import DDPMSampler, VelocityEulerSampler
+from l1flow_rl.modules.actor import L1FlowActor
 
 N, A = 6, 2
 

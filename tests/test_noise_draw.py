@@ -49,7 +49,7 @@ def test_action_noise_perturbs_every_action_inside_the_bounds_and_keeps_the_exec
     from tensordict import TensorDict
 
     from benchmarks.bench_noise_draw import ActionNoise
-    from l1flow_rl.actor import L1FlowActor
+    from l1flow_rl.modules.actor import L1FlowActor
 
     torch.manual_seed(0)
     actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32)).eval()
@@ -72,7 +72,7 @@ def test_chunk_noise_holds_one_offset_over_every_step_of_a_chunk():
     from tensordict import TensorDict
 
     from benchmarks.bench_noise_draw import ActionNoise
-    from l1flow_rl.actor import L1FlowActor
+    from l1flow_rl.modules.actor import L1FlowActor
 
     torch.manual_seed(0)
     actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32)).eval()

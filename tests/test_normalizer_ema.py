@@ -119,7 +119,7 @@ def test_dp_ema_decay_schedule():
 
 
 class _DiffusionPolicyEMA:
-    """Diffusion Policy's EMAModel schedule, written out here independently of ``l1flow_rl.ema``: the
+    """Diffusion Policy's EMAModel schedule, written out here independently of ``l1flow_rl.modules.ema``: the
     k-th call (k = 0, 1, ...) blends with decay(max(0, k - update_after_step - 1)), where
     decay(s) = 0 for s <= 0, else clamp(1 - (1 + s / inv_gamma) ** -power, min_value, max_value)."""
 

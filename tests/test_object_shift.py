@@ -207,7 +207,7 @@ def test_a_square_file_grows_by_turned_replays_and_a_lift_file_is_refused_first(
 def test_shifted_replays_refuse_an_expert_without_them():
     from omegaconf import OmegaConf
 
-    from l1flow_rl.experts.cli import demo_options
+    from l1flow_rl.experts.options import demo_options
     from l1flow_rl.experts.registry import DemoGenerationError
 
     cfg = OmegaConf.create({"demos": {"num": 3, "seed": 0, "quality": "expert", "shifted_replays": 5}})
@@ -216,7 +216,7 @@ def test_shifted_replays_refuse_an_expert_without_them():
 
 
 def test_shifted_replays_are_refused_beside_a_users_file_and_below_zero():
-    from l1flow_rl.cli import compose_config
+    from l1flow_rl.commands.cli import compose_config
     from l1flow_rl.config.validate import ConfigValidationError
 
     with pytest.raises(ConfigValidationError, match=r"demos\.shifted_replays=5: it grows the expert's"):

@@ -7,8 +7,8 @@ import torch
 from tensordict import TensorDict
 
 from l1flow_rl import L1FlowActor
-from l1flow_rl.observations import STATE_KEY, read_observations
-from l1flow_rl.value_checks import skip_value_checks
+from l1flow_rl.modules.observations import STATE_KEY, read_observations
+from l1flow_rl.utils.value_checks import skip_value_checks
 
 SHAPES = {"state": (4,), "rgb": (3, 8, 8)}
 

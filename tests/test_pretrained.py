@@ -12,9 +12,9 @@ from tensordict import TensorDict
 from test_envs_point_mass import TASK_OVERRIDES as TASK
 
 from l1flow_rl import L1FlowActor
-from l1flow_rl.cli import main
-from l1flow_rl.export import DeployablePolicy, example_inputs, export_program, load_program
-from l1flow_rl.pretrained import FORMAT_VERSION, PretrainedFolderError, read_pretrained_config
+from l1flow_rl.commands.cli import main
+from l1flow_rl.export.pretrained import FORMAT_VERSION, PretrainedFolderError, read_pretrained_config
+from l1flow_rl.export.program import DeployablePolicy, example_inputs, export_program, load_program
 from l1flow_rl.workspace.build import build_actor
 from l1flow_rl.workspace.checkpoint import load_actor
 
@@ -170,7 +170,7 @@ def test_an_image_policy_exports_whole_and_matches_eager(tmp_path):
 def test_onnx_export_matches_eager_within_float_tolerance(tmp_path):
     ort = pytest.importorskip("onnxruntime", reason="ONNX needs the export extra")
     pytest.importorskip("onnxscript", reason="the dynamo ONNX exporter needs onnxscript")
-    from l1flow_rl.export import export_onnx
+    from l1flow_rl.export.program import export_onnx
 
     actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32)).eval()
     actor.policy.fit_normalizers(torch.randn(100, 5) * 3, torch.randn(100, 2) * 4)

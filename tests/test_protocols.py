@@ -9,7 +9,7 @@ import json
 
 import pytest
 
-from l1flow_rl.cli import compose_config
+from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.config import load_task_config
 from l1flow_rl.config.validate import ConfigValidationError
 from l1flow_rl.evaluation import EvalProtocol, get_protocol, protocol_names, register_protocol, resolve_plan
@@ -127,7 +127,7 @@ def test_cli_eval_under_the_maniskill_protocol_writes_what_it_did(tmp_path):
     pytest.importorskip("mani_skill")
     from omegaconf import OmegaConf
 
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
     from l1flow_rl.workspace.build import build_actor
     from l1flow_rl.workspace.checkpoint import save_checkpoint
 

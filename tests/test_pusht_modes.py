@@ -120,7 +120,7 @@ def test_rule_agrees_with_the_planners_free_choice(expert_demos):
 
 @pytest.fixture(scope="module")
 def tiny_checkpoint(tmp_path_factory):
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     root = tmp_path_factory.mktemp("pusht_modes")
     run_dir = root / "run"

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from l1flow_rl.cli import main
+from l1flow_rl.commands.cli import main
 
 pytest.importorskip("gym_pusht", reason="needs gym-pusht: pip install 'l1flow-rl[pusht]'")
 pytestmark = pytest.mark.pusht

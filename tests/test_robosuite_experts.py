@@ -61,7 +61,7 @@ def test_canonical_rotvec_is_continuous_through_the_top_down_pose():
 
 
 def test_demos_command_then_train_end_to_end(tmp_path):
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     data = tmp_path / "data"
     assert (

@@ -18,7 +18,7 @@ import pytest
 import torch
 from doubles.point_mass import TASK_OVERRIDES
 
-from l1flow_rl.cli import main
+from l1flow_rl.commands.cli import main
 from l1flow_rl.workspace.checkpoint import first_non_finite, load_checkpoint
 
 TESTS = Path(__file__).parent

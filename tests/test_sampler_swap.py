@@ -130,7 +130,7 @@ def test_eval_sampler_applies_only_what_the_command_line_gives():
 
 
 def save_tiny_checkpoint(tmp_path, policy: str, loss_cls):
-    from l1flow_rl.cli import compose_config
+    from l1flow_rl.commands.cli import compose_config
     from l1flow_rl.workspace.build import build_actor
     from l1flow_rl.workspace.checkpoint import save_checkpoint
 
@@ -153,7 +153,7 @@ def save_tiny_checkpoint(tmp_path, policy: str, loss_cls):
 
 
 def run_eval_cli(tmp_path, checkpoint, *overrides) -> dict:
-    from l1flow_rl.cli import main
+    from l1flow_rl.commands.cli import main
 
     run_dir = tmp_path / f"eval_{len(list(tmp_path.iterdir()))}"
     args = [f"checkpoint={checkpoint}", f"run_dir={run_dir}", "device=cpu", "eval.episodes=1"]

@@ -7,8 +7,8 @@ import json
 import pytest
 import torch
 
-from l1flow_rl.cli import main
-from l1flow_rl.toy import mode_coverage, sine_modes
+from l1flow_rl.commands.cli import main
+from l1flow_rl.commands.toy import mode_coverage, sine_modes
 
 
 def test_mode_coverage_on_known_samples():
@@ -49,8 +49,8 @@ def test_toy_cli_l1flow_covers_both_modes_and_regression_collapses(tmp_path):
 def test_toy_rejects_bad_config(tmp_path):
     from omegaconf import OmegaConf
 
+    from l1flow_rl.commands.toy import run_toy
     from l1flow_rl.config import AppConfig
-    from l1flow_rl.toy import run_toy
 
     cfg = OmegaConf.structured(AppConfig(run_dir=str(tmp_path)))
     cfg.toy.methods = ["l1flow", "gan"]
@@ -66,7 +66,7 @@ def test_toy_rejects_bad_config(tmp_path):
     ("family", "k"), [("opposite_sines", 2), ("nested_amplitudes", 4), ("phase_shifts", 8)]
 )
 def test_mode_families_are_separable_at_the_tolerance(family, k):
-    from l1flow_rl.toy import TOLERANCE, toy_modes
+    from l1flow_rl.commands.toy import TOLERANCE, toy_modes
 
     modes = toy_modes(family)
     assert modes.shape == (k, 16)

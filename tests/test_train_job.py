@@ -10,7 +10,7 @@ import torch
 
 pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
 
-from l1flow_rl.cli import main
+from l1flow_rl.commands.cli import main
 from l1flow_rl.workspace.checkpoint import ResumeMismatchError, load_checkpoint
 from l1flow_rl.workspace.trainer import Trainer
 

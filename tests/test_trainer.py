@@ -240,7 +240,7 @@ def test_step_without_host_syncs_matches_the_old_step(grad_clip):
 
 
 def test_value_checks_guard_direct_input_and_are_skipped_only_when_asked():
-    from l1flow_rl.value_checks import value_checks_enabled
+    from l1flow_rl.utils.value_checks import value_checks_enabled
 
     bad = _batch(8, seed=4)
     bad["action_chunk"][3, 2, 1] = float("nan")

@@ -32,7 +32,7 @@ class AppConfig:
     offline: OfflineConfig = field(default_factory=OfflineConfig)
     online: OnlineConfig = field(default_factory=OnlineConfig)
     data_dir: str = "data"
-    # None: the run's own directory (hydra.run.dir, unique per run; see l1flow_rl.cli)
+    # None: the run's own directory (hydra.run.dir, unique per run; see l1flow_rl.commands.cli)
     run_dir: str | None = None
     checkpoint: str | None = None
     # l1flow-rl export: the pretrained folder to write, and whether it also gets the torch.export

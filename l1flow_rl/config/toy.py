@@ -9,7 +9,7 @@ __all__ = ["ToyConfig"]
 
 @dataclass
 class ToyConfig:
-    """The multi-modality demonstration (``l1flow-rl toy``); see :mod:`l1flow_rl.toy`."""
+    """The multi-modality demonstration (``l1flow-rl toy``); see :mod:`l1flow_rl.commands.toy`."""
 
     steps: int = 600  # about 90 s of CPU time for the three methods (the toy runs single-threaded)
     batch_size: int = 128

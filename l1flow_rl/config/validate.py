@@ -41,8 +41,8 @@ from l1flow_rl.envs.registry import registered_simulators
 from l1flow_rl.evaluation.plan import eval_config_problems
 from l1flow_rl.evaluation.protocols import protocol_names
 from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_problems, samplers_for
+from l1flow_rl.modules.normalizer import NormalizerMode
 from l1flow_rl.networks.encoders import encoder_names, encoder_problems
-from l1flow_rl.normalizer import NormalizerMode
 from l1flow_rl.objectives.finetune_registry import finetune_algorithm_names, finetune_algorithm_problems
 from l1flow_rl.objectives.registry import get_loss, loss_names, loss_problems
 

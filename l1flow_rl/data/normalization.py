@@ -6,7 +6,7 @@ from tensordict import TensorDictBase
 from torch import nn
 from torchrl.data import ReplayBuffer
 
-from l1flow_rl.policy import STATE_KEY, ChunkPolicy
+from l1flow_rl.modules.policy import STATE_KEY, ChunkPolicy
 
 __all__ = ["fit_normalizers"]
 
@@ -33,7 +33,7 @@ def fit_normalizers(
     """Fit ``policy``'s observation and action normalisers on every stored step.
 
     Args:
-        policy: a :class:`~l1flow_rl.policy.ChunkPolicy`, or an actor holding one (``L1FlowActor``).
+        policy: a :class:`~l1flow_rl.modules.policy.ChunkPolicy`, or an actor holding one (``L1FlowActor``).
         data: episodes from :func:`~l1flow_rl.data.load_episodes`, or a buffer from
             :func:`~l1flow_rl.data.make_chunk_buffer` (its storage is read whole, padding excluded).
         mode: ``"limits"`` (to [-1, 1]) or ``"gaussian"`` (zero mean, unit variance).

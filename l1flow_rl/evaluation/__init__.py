@@ -1,5 +1,5 @@
 """Evaluation: the batched evaluator, episode schedule, metrics with confidence intervals,
-protocols and videos. The ``l1flow-rl eval`` command is :mod:`l1flow_rl.evaluation.cli` (it loads
+protocols and videos. The ``l1flow-rl eval`` command is :mod:`l1flow_rl.commands.eval` (it loads
 checkpoints, so this package does not import it).
 
 ``evaluate(actor, env, episodes, seed)`` runs seeded episodes across parallel envs;

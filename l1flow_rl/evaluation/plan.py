@@ -14,12 +14,12 @@ from tensordict.utils import NestedKey
 
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.config.overrides import overrides_under
-from l1flow_rl.device import resolve_device
 from l1flow_rl.envs import make_env
 from l1flow_rl.envs.registry import get_simulator
 from l1flow_rl.evaluation.evaluator import BUILTIN_METRICS
 from l1flow_rl.evaluation.protocols import EvalProtocol, get_protocol
 from l1flow_rl.evaluation.videos import video_episodes_to_film
+from l1flow_rl.utils.device import resolve_device
 
 __all__ = ["SPLITS", "EvalPlan", "check_seed_ranges", "eval_config_problems", "resolve_plan", "task_from"]
 

@@ -21,7 +21,7 @@ from typing import Any
 
 from l1flow_rl.config import TaskConfig
 from l1flow_rl.envs.registry import registered_simulators
-from l1flow_rl.registries import register_unique
+from l1flow_rl.utils.registries import register_unique
 
 __all__ = [
     "EvalProtocol",

@@ -7,8 +7,6 @@ The data layer (:mod:`l1flow_rl.data`) reads what these write; it does not know 
 """
 
 from l1flow_rl.experts import registry
-from l1flow_rl.experts.cli import run_demos
 from l1flow_rl.experts.registry import *  # noqa: F403  (its public names, listed once in its __all__)
 
-__all__ = ["run_demos"]
-__all__ += registry.__all__
+__all__ = list(registry.__all__)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from l1flow_rl.registries import register_unique
+from l1flow_rl.utils.registries import register_unique
 
 if TYPE_CHECKING:  # pragma: no cover
     from l1flow_rl.config import TaskConfig

@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from l1flow_rl.value_checks import value_checks_enabled
+from l1flow_rl.utils.value_checks import value_checks_enabled
 
 __all__ = ["broadcast_time", "check_time", "interpolate", "velocity_from_sample"]
 

@@ -2,7 +2,7 @@
 
 The input beside the observation is whatever the algorithm values: the h executed actions (QC, FQL:
 Q-chunking's critic on the flattened chunk) or the sampler's input noise (DSRL's Q(s, w)). The
-observation is read by the policy (:meth:`~l1flow_rl.policy.ChunkPolicy.as_obs_dict`) before it
+observation is read by the policy (:meth:`~l1flow_rl.modules.policy.ChunkPolicy.as_obs_dict`) before it
 reaches the critic, which takes the flat TensorDict [N, To] that reader returns.
 
 The ensemble's members share one observation encoder (trained by the critic loss; for state
@@ -24,8 +24,8 @@ from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 from torch import Tensor, nn
 
+from l1flow_rl.modules.normalizer import Normalizer, NormalizerDict
 from l1flow_rl.networks.encoders import ObservationEncoder
-from l1flow_rl.normalizer import Normalizer, NormalizerDict
 
 __all__ = ["ChunkCritic", "EnsembleMLP", "critic_module", "fresh_encoder"]
 
@@ -163,7 +163,7 @@ class ChunkCritic(nn.Module):
         normalize_input: bool = True,
     ) -> ChunkCritic:
         """A critic with a re-initialised copy of ``policy``'s encoder and its normaliser statistics
-        (``policy``: a :class:`~l1flow_rl.policy.ChunkPolicy` or an actor holding one)."""
+        (``policy``: a :class:`~l1flow_rl.modules.policy.ChunkPolicy` or an actor holding one)."""
         policy = getattr(policy, "policy", policy)
         critic = cls(
             fresh_encoder(policy.encoder),

@@ -24,10 +24,10 @@ from tensordict.utils import NestedKey
 from torch import Tensor
 from torchrl.objectives import LossModule
 
-from l1flow_rl.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
+from l1flow_rl.modules.policy import ChunkPolicy
 from l1flow_rl.networks.critic import ChunkCritic, critic_module
 from l1flow_rl.objectives.chunk_loss import required_entry
-from l1flow_rl.policy import ChunkPolicy
+from l1flow_rl.utils.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
 
 __all__ = ["ChunkCriticLoss"]
 
@@ -52,7 +52,7 @@ class ChunkCriticLoss(LossModule):
         critic: a :class:`~l1flow_rl.networks.critic.ChunkCritic` (E members) or a
             TensorDictModule around one. Its target copy is made here (update it with TorchRL's
             ``SoftUpdate``).
-        policy: the :class:`~l1flow_rl.policy.ChunkPolicy` (or an actor holding one) whose reader
+        policy: the :class:`~l1flow_rl.modules.policy.ChunkPolicy` (or an actor holding one) whose reader
             validates observations and whose horizons locate the executed chunk; it is not trained here.
 
     Keyword Args:

@@ -12,8 +12,8 @@ from tensordict.utils import NestedKey
 from torch import Tensor
 from torchrl.objectives import LossModule
 
-from l1flow_rl.policy import ChunkPolicy
-from l1flow_rl.value_checks import value_checks_enabled
+from l1flow_rl.modules.policy import ChunkPolicy
+from l1flow_rl.utils.value_checks import value_checks_enabled
 
 __all__ = ["ChunkLossBase"]
 
@@ -30,7 +30,7 @@ def required_entry(td: TensorDictBase, key: NestedKey, what: str, owner: str):
 
 
 class ChunkLossBase(LossModule):
-    """Base for losses that train a :class:`~l1flow_rl.actor.L1FlowActor`'s network on action chunks.
+    """Base for losses that train a :class:`~l1flow_rl.modules.actor.L1FlowActor`'s network on action chunks.
 
     Subclasses set ``loss_name``, ``prediction`` (the sampler target they train for) and implement
     :meth:`_elementwise_loss`.

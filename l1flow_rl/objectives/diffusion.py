@@ -6,8 +6,8 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import Tensor
 
-from l1flow_rl.doc_examples import chunk_loss_example
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
+from l1flow_rl.utils.doc_examples import chunk_loss_example
 
 __all__ = ["DiffusionLoss"]
 

@@ -20,10 +20,10 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 from torch import Tensor, nn
 
-from l1flow_rl.doc_examples import FLOW, TRAIN_STEP, TRANSITIONS, add_example
+from l1flow_rl.finetune.noise_actor import NoiseActor, NoisePolicy
 from l1flow_rl.networks.critic import ChunkCritic
-from l1flow_rl.noise_actor import NoiseActor, NoisePolicy
 from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
+from l1flow_rl.utils.doc_examples import FLOW, TRAIN_STEP, TRANSITIONS, add_example
 
 __all__ = ["DSRLLoss", "sac_actor_terms"]
 

@@ -14,7 +14,7 @@ as the one chunk they are:
 Public implementations fit Q^W on prior noises (a JAX one) or on the actor's (a PyTorch one); this one
 fits both, half each (measured: see :meth:`DSRLNALoss.distill_loss`). One departure, for 2 CPU
 cores: the prior noises are drawn once per observation and their decoded chunks kept
-(:class:`~l1flow_rl.proposal_cache.ProposalCache`: the flow is frozen, so they never change); the
+(:class:`~l1flow_rl.finetune.proposal_cache.ProposalCache`: the flow is frozen, so they never change); the
 actor's noise, like the bootstrap's w', is decoded at every update.
 """
 
@@ -28,12 +28,12 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 
-from l1flow_rl.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
+from l1flow_rl.finetune.noise_actor import NoiseActor, NoisePolicy
+from l1flow_rl.finetune.proposal_cache import ProposalCache
 from l1flow_rl.networks.critic import ChunkCritic, critic_module
-from l1flow_rl.noise_actor import NoiseActor, NoisePolicy
 from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.objectives.dsrl import sac_actor_terms
-from l1flow_rl.proposal_cache import ProposalCache
+from l1flow_rl.utils.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
 
 __all__ = ["DSRLNALoss"]
 

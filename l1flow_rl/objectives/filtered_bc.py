@@ -11,7 +11,7 @@ from __future__ import annotations
 from tensordict import TensorDict, TensorDictBase
 from torchrl.objectives import LossModule
 
-from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.objectives.l1flow import L1FlowLoss
 
 __all__ = ["FilteredBCLoss"]

@@ -25,8 +25,6 @@ from omegaconf import DictConfig
 from torch import nn
 from torchrl.objectives import LossModule
 
-from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.best_of_n_actor import BestOfNActor
 from l1flow_rl.config.finetune import (
     DSRLNASettings,
     DSRLSettings,
@@ -34,14 +32,16 @@ from l1flow_rl.config.finetune import (
     FQLSettings,
     QCSettings,
 )
+from l1flow_rl.finetune.best_of_n_actor import BestOfNActor
+from l1flow_rl.finetune.noise_actor import NoiseActor
+from l1flow_rl.finetune.one_step_actor import OneStepActor
+from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.networks.critic import ChunkCritic
-from l1flow_rl.noise_actor import NoiseActor
 from l1flow_rl.objectives.dsrl import DSRLLoss
 from l1flow_rl.objectives.dsrl_na import DSRLNALoss
 from l1flow_rl.objectives.filtered_bc import FilteredBCLoss
 from l1flow_rl.objectives.fql import FQLLoss
 from l1flow_rl.objectives.qc import QCLoss
-from l1flow_rl.one_step_actor import OneStepActor
 
 __all__ = [
     "FINETUNE_ALGORITHMS",

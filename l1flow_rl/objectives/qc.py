@@ -4,7 +4,7 @@ The next chunk a' of the TD target is the best of N proposals of the flow's 2-NF
 s_{t+h}, picked by the ONLINE critics (their mean) and valued by the TARGET critics (``q_agg``): QC's
 expected-max backup. The flow keeps its L1 Flow BC loss on the replay batches (QC's only way to
 move the proposals), unless ``freeze_flow``: a frozen flow's proposals at a stored state are then
-drawn once and reused (:class:`~l1flow_rl.proposal_cache.ProposalCache`), so an update costs the
+drawn once and reused (:class:`~l1flow_rl.finetune.proposal_cache.ProposalCache`), so an update costs the
 critics alone instead of 256 x N flow samples.
 """
 
@@ -16,13 +16,13 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
-from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.best_of_n_actor import BestOfNActor
-from l1flow_rl.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
+from l1flow_rl.finetune.best_of_n_actor import BestOfNActor
+from l1flow_rl.finetune.proposal_cache import ProposalCache
+from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.objectives.l1flow import L1FlowLoss
-from l1flow_rl.proposal_cache import ProposalCache
+from l1flow_rl.utils.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
 
 __all__ = ["QCLoss"]
 

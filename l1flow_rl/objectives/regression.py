@@ -6,9 +6,9 @@ import torch
 from tensordict.nn import TensorDictModule
 from torch import Tensor
 
-from l1flow_rl.doc_examples import chunk_loss_example
 from l1flow_rl.flow.objectives import LossType, check_loss_type, pointwise_error
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
+from l1flow_rl.utils.doc_examples import chunk_loss_example
 
 __all__ = ["RegressionLoss"]
 

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from omegaconf import DictConfig, OmegaConf
 from torchrl.objectives import LossModule
 
-from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.objectives.registry import get_loss
 
 __all__ = ["build_actor", "build_loss"]

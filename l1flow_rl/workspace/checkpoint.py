@@ -20,10 +20,10 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from l1flow_rl.actor import L1FlowActor
 from l1flow_rl.errors import CheckpointMismatchError, CheckpointReadError
+from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
-from l1flow_rl.state_dict import load_state_into
+from l1flow_rl.utils.state_dict import load_state_into
 from l1flow_rl.workspace.build import build_actor
 
 __all__ = [

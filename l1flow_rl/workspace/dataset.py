@@ -22,7 +22,7 @@ from l1flow_rl.data import (
 from l1flow_rl.data.loading import open_episode_file
 from l1flow_rl.envs import get_simulator
 from l1flow_rl.experts import ensure_demos
-from l1flow_rl.experts.cli import demo_options
+from l1flow_rl.experts.options import demo_options
 
 __all__ = ["chunk_padding", "load_task_episodes", "make_train_buffer", "resolve_dataset"]
 

@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 import torch
 import torch.distributed as dist
 
-from l1flow_rl.device import resolve_device  # re-exported: the jobs read device= through it
+from l1flow_rl.utils.device import resolve_device  # re-exported: the jobs read device= through it
 
 __all__ = [
     "STATUS_TIMEOUT",

@@ -37,7 +37,7 @@ from torchrl.objectives import SoftUpdate
 from tqdm import tqdm
 
 from l1flow_rl.config.overrides import overrides_under
-from l1flow_rl.ema import DPEma, make_ema
+from l1flow_rl.modules.ema import DPEma, make_ema
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.workspace.checkpoint import (
     CheckpointMismatchError,

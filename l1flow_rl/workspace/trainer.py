@@ -19,9 +19,9 @@ from torch import Tensor, nn
 from torch.nn.parallel import DistributedDataParallel
 from torchrl.objectives import LossModule
 
-from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.ema import make_ema
-from l1flow_rl.value_checks import skip_value_checks
+from l1flow_rl.modules.actor import L1FlowActor
+from l1flow_rl.modules.ema import make_ema
+from l1flow_rl.utils.value_checks import skip_value_checks
 from l1flow_rl.workspace.checkpoint import load_state_into
 
 __all__ = ["Trainer", "warmup_cosine"]

@@ -4,7 +4,7 @@ process of its own: ``PYTHONPATH=tests python -m doubles.cli train task.simulato
 import sys
 
 import doubles.point_mass  # noqa: F401  registers the simulator and its expert, as a user's package would
-from l1flow_rl.cli import main
+from l1flow_rl.commands.cli import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from l1flow_rl.networks.encoders.base import ObservationEncoder, image_entries
-from l1flow_rl.registries import register_unique
+from l1flow_rl.utils.registries import register_unique
 
 __all__ = [
     "AUTO",

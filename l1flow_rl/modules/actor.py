@@ -12,11 +12,11 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, dispatch
 from tensordict.utils import NestedKey
 
-from l1flow_rl import pretrained_folder
+from l1flow_rl.export import folder as pretrained_folder
 from l1flow_rl.flow.samplers import ChunkSampler, TwoStepSampler, make_sampler
+from l1flow_rl.modules.policy import STATE_KEY, ChunkPolicy
 from l1flow_rl.networks.encoders import AUTO, ObservationEncoder, StateEncoder, make_encoder
 from l1flow_rl.networks.unet1d import ConditionalUnet1D
-from l1flow_rl.policy import STATE_KEY, ChunkPolicy
 
 __all__ = ["L1FlowActor"]
 
@@ -213,10 +213,10 @@ class L1FlowActor(TensorDictModule):
             **kwargs,
         )
 
-    # -- a folder others can load (l1flow_rl.pretrained) -----------------------------------------
+    # -- a folder others can load (l1flow_rl.export.pretrained) -----------------------------------------
     def save_pretrained(self, path: str | os.PathLike, **kwargs: Any) -> Path:
         """Write this actor as a pretrained folder (config.json, model.safetensors,
-        normalizer.safetensors); keyword arguments as :func:`l1flow_rl.pretrained.save_pretrained`."""
+        normalizer.safetensors); keyword arguments as :func:`l1flow_rl.export.pretrained.save_pretrained`."""
         return pretrained_folder.write_folder(self, path, **kwargs)
 
     @classmethod

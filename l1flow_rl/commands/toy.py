@@ -24,7 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
 from torch import Tensor
 
-from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.commands.toy_plot import plot_toy
 from l1flow_rl.flow.samplers import (
     ChunkSampler,
     DirectSampler,
@@ -32,9 +32,9 @@ from l1flow_rl.flow.samplers import (
     TwoStepSampler,
     VelocityEulerSampler,
 )
+from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.objectives import FlowMatchingLoss, L1FlowLoss, RegressionLoss
 from l1flow_rl.objectives.chunk_loss import ChunkLossBase
-from l1flow_rl.toy_plot import plot_toy
 
 __all__ = [
     "MODE_FAMILIES",

@@ -1,6 +1,6 @@
 """The pretrained folder on disk: its config.json, its safetensors files, and the checks on both.
 
-The low layer of :mod:`l1flow_rl.pretrained` (the folder's layout is described there): it reads and
+The low layer of :mod:`l1flow_rl.export.pretrained` (the folder's layout is described there): it reads and
 writes folders for :meth:`L1FlowActor.save_pretrained <l1flow_rl.L1FlowActor.save_pretrained>` and
 :meth:`L1FlowActor.from_pretrained <l1flow_rl.L1FlowActor.from_pretrained>`, and so imports nothing
 that imports the actor; the actor class it builds is passed in.
@@ -14,20 +14,18 @@ import shutil
 from collections.abc import Mapping
 from importlib import metadata
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 from omegaconf import DictConfig, OmegaConf
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
+from tensordict.nn import TensorDictModule  # the actor's base: naming the actor would close a circle
 
 from l1flow_rl.errors import CheckpointMismatchError
-from l1flow_rl.export import ONNX_FILE, PROGRAM_FILE, export_onnx, export_program, program_description
+from l1flow_rl.export.program import ONNX_FILE, PROGRAM_FILE, export_onnx, export_program, program_description
 from l1flow_rl.flow.samplers import sampler_name
-from l1flow_rl.state_dict import load_state_into
-
-if TYPE_CHECKING:
-    from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.utils.state_dict import load_state_into
 
 __all__ = [
     "CONFIG_FILE",
@@ -94,7 +92,7 @@ def json_ready(value: Any) -> Any:
     return value
 
 
-def _policy_description(actor: L1FlowActor, policy: Mapping[str, Any] | None) -> dict[str, Any]:
+def _policy_description(actor: TensorDictModule, policy: Mapping[str, Any] | None) -> dict[str, Any]:
     """The policy settings as given, completed from the actor itself: horizons and sampler are read
     from the modules, so they can never disagree with the weights."""
     p = actor.policy
@@ -113,7 +111,7 @@ def _policy_description(actor: L1FlowActor, policy: Mapping[str, Any] | None) ->
     return described
 
 
-def _split_state(actor: L1FlowActor) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+def _split_state(actor: TensorDictModule) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
     """(network and encoder weights, normaliser buffers) of the actor's state_dict, as contiguous
     tensors that own their memory (safetensors refuses views of shared storage)."""
     weights, norms = {}, {}
@@ -123,7 +121,7 @@ def _split_state(actor: L1FlowActor) -> tuple[dict[str, torch.Tensor], dict[str,
     return weights, norms
 
 
-def _normalizer_modes(actor: L1FlowActor) -> dict[str, str]:
+def _normalizer_modes(actor: TensorDictModule) -> dict[str, str]:
     p = actor.policy
     modes = {f"observation.{k}": n.mode for k, n in p.obs_normalizer.items()}
     modes["action"] = p.action_normalizer.mode
@@ -131,7 +129,7 @@ def _normalizer_modes(actor: L1FlowActor) -> dict[str, str]:
 
 
 def write_folder(
-    actor: L1FlowActor,
+    actor: TensorDictModule,
     path: str | os.PathLike,
     *,
     policy: Mapping[str, Any] | DictConfig | None = None,
@@ -142,7 +140,7 @@ def write_folder(
     program: bool = False,
     onnx: bool = False,
 ) -> Path:
-    """Write ``actor`` as a pretrained folder at ``path`` (see :mod:`l1flow_rl.pretrained`).
+    """Write ``actor`` as a pretrained folder at ``path`` (see :mod:`l1flow_rl.export.pretrained`).
 
     Args:
         actor: an :class:`~l1flow_rl.L1FlowActor` (not a best-of-N actor: its critics are not saved).
@@ -280,7 +278,9 @@ def read_pretrained_config(path: str | os.PathLike) -> dict[str, Any]:
     return config
 
 
-def build_described(actor_cls: type[L1FlowActor], config: Mapping[str, Any], folder: Path) -> L1FlowActor:
+def build_described(
+    actor_cls: type[TensorDictModule], config: Mapping[str, Any], folder: Path
+) -> TensorDictModule:
     """The untrained ``actor_cls`` that ``config`` (a checked config.json) describes."""
     obs = config["observation"]
     shapes = {k: tuple(v["shape"]) for k, v in obs["entries"].items()}
@@ -301,7 +301,7 @@ def build_described(actor_cls: type[L1FlowActor], config: Mapping[str, Any], fol
         ) from err
 
 
-def load_weights(actor: L1FlowActor, state: Mapping[str, torch.Tensor], folder: Path) -> None:
+def load_weights(actor: TensorDictModule, state: Mapping[str, torch.Tensor], folder: Path) -> None:
     """``state`` into ``actor``; a mismatch is a :class:`PretrainedFolderError` naming the folder."""
     try:
         load_state_into(actor, state, str(folder))

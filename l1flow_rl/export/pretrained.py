@@ -9,7 +9,7 @@ The folder, in the shape LeRobot's users share policies in::
     normalizer.safetensors    the observation and action normalisers (scale, offset, mode per entry)
     train_config.json         the full config of the training run (provenance; not read to rebuild)
     policy.pt2                optional: the whole 2-NFE call as a ``torch.export`` program
-                              (see :mod:`l1flow_rl.export`)
+                              (see :mod:`l1flow_rl.export.program`)
 
 :func:`save_pretrained` writes it (``l1flow-rl export checkpoint=CKPT out=DIR`` from a checkpoint) and
 :func:`load_pretrained` rebuilds the actor (``L1FlowActor.from_pretrained(DIR)``). Weights go through
@@ -35,8 +35,7 @@ from typing import Any
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.pretrained_folder import (
+from l1flow_rl.export.folder import (
     CONFIG_FILE,
     FORMAT,
     FORMAT_VERSION,
@@ -44,6 +43,7 @@ from l1flow_rl.pretrained_folder import (
     is_pretrained_folder,
     read_pretrained_config,
 )
+from l1flow_rl.modules.actor import L1FlowActor
 
 __all__ = [
     "CONFIG_FILE",
@@ -61,7 +61,7 @@ __all__ = [
 def save_pretrained(actor: L1FlowActor, path: str | os.PathLike, **settings: Any) -> Path:
     """Write ``actor`` as a pretrained folder at ``path``; ``settings`` (``policy``, ``encoder``, ``task``,
     ``train_config``, ``source``, ``program``, ``onnx``) as
-    :func:`~l1flow_rl.pretrained_folder.write_folder`. Only an :class:`~l1flow_rl.L1FlowActor` is taken."""
+    :func:`~l1flow_rl.export.folder.write_folder`. Only an :class:`~l1flow_rl.L1FlowActor` is taken."""
     if not isinstance(actor, L1FlowActor):
         raise TypeError(
             f"save_pretrained takes an L1FlowActor, got {type(actor).__name__}; a best-of-N actor selects "

@@ -16,7 +16,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
-from l1flow_rl.value_checks import value_checks_enabled
+from l1flow_rl.utils.value_checks import value_checks_enabled
 
 __all__ = ["STATE_KEY", "read_observations"]
 
@@ -57,7 +57,7 @@ def read_observations(
     Checked: every entry of ``obs_shapes`` is there (a tensor only for a single :data:`STATE_KEY`
     entry), each has shape ``[*B, obs_horizon, *entry shape]`` with the same ``B``, image entries
     (``[3, H, W]``) are uint8, and floating entries are finite (a value check, skipped inside
-    :func:`~l1flow_rl.value_checks.skip_value_checks`). Floating entries are cast to ``dtype`` (the
+    :func:`~l1flow_rl.utils.value_checks.skip_value_checks`). Floating entries are cast to ``dtype`` (the
     network's: float64 data would clash with float32 weights); images stay uint8. Errors name the
     entry as ``key.entry``.
 

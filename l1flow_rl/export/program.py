@@ -18,6 +18,7 @@ needs ``onnxscript``) on the same module.
 
 Example:
     >>> import torch
+from tensordict.nn import TensorDictModule  # the actor's base: naming the actor would close a circle
     >>> from l1flow_rl import L1FlowActor
     >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32)).eval()
     >>> program = torch.export.export(DeployablePolicy(actor), example_inputs(actor), strict=False)
@@ -30,14 +31,12 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 from tensordict import TensorDict
+from tensordict.nn import TensorDictModule  # the actor's base: naming the actor would close a circle
 from torch import Tensor, nn
-
-if TYPE_CHECKING:
-    from l1flow_rl.actor import L1FlowActor
 
 __all__ = [
     "ONNX_FILE",
@@ -61,7 +60,7 @@ class DeployablePolicy(nn.Module):
     the actor's weights; put the actor in eval mode first (image crops are centre crops then).
     """
 
-    def __init__(self, actor: L1FlowActor) -> None:
+    def __init__(self, actor: TensorDictModule) -> None:
         super().__init__()
         self.policy = actor.policy
         self.entry_names = list(self.policy.encoder.obs_shapes)
@@ -76,7 +75,7 @@ class DeployablePolicy(nn.Module):
         return p.executable(p.action_normalizer.unnormalize(chunk))
 
 
-def example_inputs(actor: L1FlowActor, batch: int = 1) -> tuple[Tensor, ...]:
+def example_inputs(actor: TensorDictModule, batch: int = 1) -> tuple[Tensor, ...]:
     """Zero observations (uint8 images, float entries) and zero noise of the shapes the actor takes."""
     p = actor.policy
     device = next(p.net.parameters()).device
@@ -89,13 +88,15 @@ def example_inputs(actor: L1FlowActor, batch: int = 1) -> tuple[Tensor, ...]:
     return (*entries, torch.zeros(batch, p.pred_horizon, p.action_dim, dtype=p.dtype, device=device))
 
 
-def _dynamic_batch(actor: L1FlowActor) -> tuple[tuple[dict[int, Any], ...]]:
+def _dynamic_batch(actor: TensorDictModule) -> tuple[tuple[dict[int, Any], ...]]:
     """Dim 0 of every input is the batch (one spec per input, inside the ``*inputs`` tuple)."""
     batch = torch.export.Dim("batch", min=1, max=4096)
     return (tuple({0: batch} for _ in range(len(actor.policy.encoder.obs_shapes) + 1)),)
 
 
-def export_program(actor: L1FlowActor, path: str | os.PathLike | None = None) -> torch.export.ExportedProgram:
+def export_program(
+    actor: TensorDictModule, path: str | os.PathLike | None = None
+) -> torch.export.ExportedProgram:
     """``torch.export`` of :class:`DeployablePolicy` (batch size dynamic), saved to ``path`` when given.
 
     Exported non-strict: TensorDict glue runs as Python while tracing and leaves only tensor ops."""
@@ -114,7 +115,7 @@ def load_program(path: str | os.PathLike) -> nn.Module:
     return torch.export.load(str(path)).module()
 
 
-def program_description(actor: L1FlowActor) -> dict[str, Any]:
+def program_description(actor: TensorDictModule) -> dict[str, Any]:
     """What config.json says about the program: its file, its inputs in order, its output."""
     p = actor.policy
     inputs = [
@@ -140,7 +141,7 @@ def program_description(actor: L1FlowActor) -> dict[str, Any]:
     }
 
 
-def export_onnx(actor: L1FlowActor, path: str | os.PathLike) -> Path:
+def export_onnx(actor: TensorDictModule, path: str | os.PathLike) -> Path:
     """The same call as an ONNX model (dynamo exporter, opset of the installed torch), batch dynamic.
 
     Needs ``onnx`` and ``onnxscript`` (``pip install 'l1flow-rl[export]'``)."""

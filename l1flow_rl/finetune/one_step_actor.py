@@ -14,9 +14,9 @@ from tensordict.nn import InteractionType, TensorDictModule
 from tensordict.nn.probabilistic import interaction_type
 from torch import Tensor, nn
 
+from l1flow_rl.modules.normalizer import Normalizer, NormalizerDict
+from l1flow_rl.modules.policy import ChunkPolicy, ExecutesChunks
 from l1flow_rl.networks.critic import fresh_encoder
-from l1flow_rl.normalizer import Normalizer, NormalizerDict
-from l1flow_rl.policy import ChunkPolicy, ExecutesChunks
 
 __all__ = ["OneStepActor", "OneStepPolicy"]
 

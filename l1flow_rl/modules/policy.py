@@ -12,10 +12,10 @@ from tensordict.nn.probabilistic import interaction_type
 from torch import Tensor, nn
 
 from l1flow_rl.flow.samplers import ChunkSampler, check_sampler_fits
+from l1flow_rl.modules.normalizer import Normalizer, NormalizerDict
+from l1flow_rl.modules.observations import STATE_KEY, read_observations
 from l1flow_rl.networks.encoders import ObservationEncoder
 from l1flow_rl.networks.unet1d import ConditionalUnet1D
-from l1flow_rl.normalizer import Normalizer, NormalizerDict
-from l1flow_rl.observations import STATE_KEY, read_observations
 
 __all__ = ["STATE_KEY", "ChunkPolicy"]
 
@@ -120,7 +120,7 @@ class ChunkPolicy(nn.Module):
         """Validate an observation (tensor or TensorDict of entries) with batch dims [*B, To, ...]
         and return it as a TensorDict flattened to batch [N, To]. Flat entries are cast to the
         network's dtype; image entries ([3, H, W] per step) must be uint8 and stay uint8 here
-        (:func:`~l1flow_rl.observations.read_observations`)."""
+        (:func:`~l1flow_rl.modules.observations.read_observations`)."""
         return read_observations(observation, self.encoder.obs_shapes, self.obs_horizon, self.dtype, key=key)[
             0
         ]

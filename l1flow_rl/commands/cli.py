@@ -63,15 +63,19 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
         "run_train",
         "generate missing demos, train, evaluate, checkpoint",
     ),
-    "eval": ("l1flow_rl.evaluation.cli", "run_eval", "evaluate a checkpoint: eval.json (+ video on request)"),
+    "eval": ("l1flow_rl.commands.eval", "run_eval", "evaluate a checkpoint: eval.json (+ video on request)"),
     "demos": (
-        "l1flow_rl.experts.cli",
+        "l1flow_rl.commands.demos",
         "run_demos",
         "make demonstrations with the task's expert into data_dir",
     ),
-    "toy": ("l1flow_rl.toy", "run_toy", "the multi-modality demonstration (paper Fig. 2): toy.png, toy.json"),
+    "toy": (
+        "l1flow_rl.commands.toy",
+        "run_toy",
+        "the multi-modality demonstration (paper Fig. 2): toy.png, toy.json",
+    ),
     "export": (
-        "l1flow_rl.export_cli",
+        "l1flow_rl.commands.export",
         "run_export",
         "a checkpoint as a pretrained folder (config.json, model.safetensors; program=true: policy.pt2)",
     ),

@@ -1,7 +1,7 @@
 """Loading a state_dict into a network with an error that says what does not fit.
 
 Imports nothing of the package but its errors, so that the actor's pretrained folders
-(:mod:`l1flow_rl.pretrained_folder`) and the training checkpoints (:mod:`l1flow_rl.workspace.checkpoint`)
+(:mod:`l1flow_rl.export.folder`) and the training checkpoints (:mod:`l1flow_rl.workspace.checkpoint`)
 share it without importing each other.
 """
 

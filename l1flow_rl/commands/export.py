@@ -1,5 +1,5 @@
 """``l1flow-rl export checkpoint=CKPT out=DIR [program=true] [onnx=true]``: a training checkpoint as a
-pretrained folder (:mod:`l1flow_rl.pretrained`), with the EMA weights."""
+pretrained folder (:mod:`l1flow_rl.export.pretrained`), with the EMA weights."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.pretrained import save_pretrained
+from l1flow_rl.export.pretrained import save_pretrained
+from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
 
 __all__ = ["run_export"]

@@ -13,10 +13,10 @@ from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torch import Tensor
 
-from l1flow_rl.actor import L1FlowActor
-from l1flow_rl.doc_examples import CRITIC, FLOW, add_example
+from l1flow_rl.modules.actor import L1FlowActor
+from l1flow_rl.modules.policy import ChunkPolicy, ExecutesChunks
 from l1flow_rl.networks.critic import ChunkCritic
-from l1flow_rl.policy import ChunkPolicy, ExecutesChunks
+from l1flow_rl.utils.doc_examples import CRITIC, FLOW, add_example
 
 __all__ = ["BestOfNActor"]
 

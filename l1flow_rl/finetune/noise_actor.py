@@ -27,10 +27,10 @@ from tensordict.utils import NestedKey
 from torch import Tensor, nn
 from torchrl.modules import TanhNormal
 
-from l1flow_rl.actor import L1FlowActor
+from l1flow_rl.modules.actor import L1FlowActor
+from l1flow_rl.modules.normalizer import NormalizerDict
+from l1flow_rl.modules.policy import ChunkPolicy, ExecutesChunks
 from l1flow_rl.networks.critic import fresh_encoder
-from l1flow_rl.normalizer import NormalizerDict
-from l1flow_rl.policy import ChunkPolicy, ExecutesChunks
 
 __all__ = ["NoiseActor", "NoisePolicy", "PriorNoise"]
 

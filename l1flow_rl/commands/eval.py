@@ -9,11 +9,11 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from l1flow_rl.device import resolve_device
 from l1flow_rl.evaluation.evaluator import evaluate, sampler_record
 from l1flow_rl.evaluation.plan import resolve_plan, task_from
 from l1flow_rl.evaluation.rescore import eval_sampler
-from l1flow_rl.pretrained import CONFIG_FILE, load_pretrained_for_eval
+from l1flow_rl.export.pretrained import CONFIG_FILE, load_pretrained_for_eval
+from l1flow_rl.utils.device import resolve_device
 from l1flow_rl.workspace.checkpoint import load_actor
 from l1flow_rl.workspace.report import format_summary
 
@@ -58,7 +58,7 @@ def run_eval(cfg: DictConfig) -> int:
         )
         return 2
     device = resolve_device(cfg.device)
-    if (Path(cfg.checkpoint) / CONFIG_FILE).is_file():  # a pretrained folder (l1flow_rl.pretrained)
+    if (Path(cfg.checkpoint) / CONFIG_FILE).is_file():  # a pretrained folder (l1flow_rl.export.pretrained)
         actor, train_cfg = load_pretrained_for_eval(cfg.checkpoint, map_location=device)
     else:
         actor, train_cfg = load_actor(cfg.checkpoint, use_ema=True, map_location=device)

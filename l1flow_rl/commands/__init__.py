@@ -1,0 +1,1 @@
+"""The ``l1flow-rl`` command (``cli``) and the entry point of each of its sub-commands."""
