@@ -43,7 +43,6 @@ def observation(batch: int, obs_horizon: int, device: torch.device) -> TensorDic
 
 
 def calls_for(actor, td: TensorDict) -> dict:
-
     @torch.inference_mode()
     def full() -> None:
         actor(td.clone())

@@ -26,7 +26,7 @@ INSTALL_HINT = "pip install 'l1flow-rl[pusht]' (or: pip install gym-pusht==0.1.8
 
 #: how make_env runs several PushT envs: worker processes (``parallel``), one after another in this
 #: process (``serial``), or ``auto``: serial for the low-dim modes, whose 1000+ steps/s per env make
-#: TorchRL's inter-process overhead the bottleneck (benchmarks/bench_pusht_env.py: 2 envs serial
+#: TorchRL's inter-process overhead the bottleneck (benchmarks/speed/bench_pusht_env.py: 2 envs serial
 #: 0.30x raw gym-pusht, parallel 0.15x, on the loaded 2-core machine), parallel for the pixel modes
 BACKENDS = ("auto", "parallel", "serial")
 

@@ -189,7 +189,7 @@ def evaluate(
             reductions ``max``, ``sum``, ``last``, ``any``.
         video_dir, video_episodes: write the first ``video_episodes`` episodes as mp4 there.
         noise_seed: seeds the policy's noise instead of ``seed`` (the episodes keep their seeds): how
-            much of a success figure is the sampler's noise draw (``benchmarks/bench_noise_draw.py``).
+            much of a success figure is the sampler's noise draw.
 
     Returns:
         The means over episodes of ``success_once``, ``success_at_end``, ``return``,
