@@ -71,7 +71,7 @@ def test_report_writes_results_and_the_readme_summary_from_saved_results_only(tm
     assert record["config"]["quick"] is True and record["config"]["out"] == str(results / "latency.json")
     assert re.fullmatch(r"[0-9a-f]{40}(-dirty)?", record["commit"])
     source = next(line for line in text.splitlines() if "[`latency.json`](results/latency.json)" in line)
-    assert f"measured {record['measured_at']}; machine: " in source
+    assert f"measured: {record['measured_at']}; machine: " in source
     assert f"command: `{record['command']}`; commit `{record['commit'][:12]}`" in source
     assert "`somebody_new.json`" in text  # a file without a renderer is named, not dropped
     assert "latency_image" not in text

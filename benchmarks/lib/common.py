@@ -44,7 +44,7 @@ ROOT = Path(__file__).resolve().parents[2]
 #: where the scripts save their figures by default, and where the report reads them
 RESULTS_DIR = ROOT / "benchmarks" / "results"
 #: (module, argv, parsed arguments) of the script whose :func:`parse_args` ran last in this process
-_current: tuple[str, list[str], dict[str, Any]] | None = None
+_current: tuple[str, list[str], argparse.Namespace] | None = None
 
 
 def timed(fn: Callable[[], object], device: torch.device) -> tuple[float, float]:
@@ -81,12 +81,13 @@ def interleaved(
 
 def parse_args(parser: argparse.ArgumentParser, argv: list[str] | None = None) -> argparse.Namespace:
     """``parser.parse_args(argv)``, remembering the calling script's module, its command line and the
-    resolved arguments (defaults included), which :func:`save_results` records with the figures."""
+    parsed arguments, which :func:`save_results` records with the figures (as they are when saved:
+    defaults included, and whatever ``--quick`` changed)."""
     global _current
     args = parser.parse_args(argv)
     spec = sys._getframe(1).f_globals.get("__spec__")
     module = spec.name if spec is not None else Path(sys.argv[0]).stem
-    _current = (module, list(sys.argv[1:] if argv is None else argv), _jsonable(vars(args)))
+    _current = (module, list(sys.argv[1:] if argv is None else argv), args)
     return args
 
 
@@ -120,10 +121,10 @@ def provenance() -> dict[str, Any] | None:
     script parsed its arguments through :func:`parse_args`."""
     if _current is None:
         return None
-    module, argv, config = _current
+    module, argv, args = _current
     return {
         "command": shlex.join(["python", "-m", module, *argv]),
-        "config": config,
+        "config": _jsonable(vars(args)),
         "commit": git_commit(),
         "measured_at": datetime.now(timezone.utc).isoformat(timespec="seconds"),
     }

@@ -82,7 +82,7 @@ def source_line(path: Path, data: dict, doc: Path) -> str:
     where the file records them (files saved before the scripts recorded them say so)."""
     record = data.get("provenance") or {}
     when = record.get("measured_at", "not recorded")
-    text = f"[`{path.name}`]({link(path, doc)}): measured {when}; machine: {machine_text(data)}"
+    text = f"[`{path.name}`]({link(path, doc)}): measured: {when}; machine: {machine_text(data)}"
     command = record.get("command") or data.get("command")
     if command:
         text += f"; command: `{command}`"
