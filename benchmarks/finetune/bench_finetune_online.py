@@ -42,6 +42,7 @@ from pathlib import Path
 
 from benchmarks.lib.common import machine_info, parse_args, save_results
 from benchmarks.lib.sweep import mean_and_spread
+from benchmarks.report.finetune import render_finetune_online
 
 #: budget departures from the presets on 2 shared CPU cores, with the cost figure that forces each
 CPU_BUDGET: dict[str, list[str]] = {
@@ -374,6 +375,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--override", nargs="*", default=[])
     parser.add_argument("--collect-only", action="store_true")
     parser.add_argument("--out", default=None)
+    parser.add_argument(
+        "--plot",
+        default=None,
+        help="also draw this file's curves there (a PNG; RESULTS.md draws one figure per start instead)",
+    )
     args = parse_args(parser, argv)
     controls = {}
     for item in args.control:
@@ -470,8 +476,9 @@ def main(argv: list[str] | None = None) -> int:
         "algorithms": algorithms,
     }
     save_results(out, data)
-    plot(data, out.with_suffix(".png"))
-    print(json.dumps({a: v["aggregate"]["test_mean"] for a, v in algorithms.items()}))
+    if args.plot:
+        plot(data, Path(args.plot))
+    print(render_finetune_online(data))
     return 0
 
 
