@@ -259,6 +259,8 @@ def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
         "ddim16",
         "--root",
         str(tmp_path),
+        "--plot",
+        str(tmp_path / "success_pushcube_quick.png"),
     ]
     assert bench_success.main(argv) == 0
     figures = json.loads((tmp_path / "success_pushcube_quick.json").read_text())

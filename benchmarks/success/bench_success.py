@@ -7,8 +7,9 @@ DDIM-16 (a sampler swap, no retraining), and with ``--maniskill-protocol`` every
 re-scored under ``eval.protocol=maniskill`` so the rows sit beside ManiSkill's published baseline.
 
 Saved: ``benchmarks/results/success_<tag>.json`` (per run, per method: final success_once with its
-95 % Wilson interval, mean and spread over seeds, the curve, steps to 90 % of the best) and
-``success_<tag>.png`` (success against step, mean and min-max band over seeds). The sweep resumes:
+95 % Wilson interval, mean and spread over seeds, the curve, steps to 90 % of the best); with
+``--plot PATH``, the file's curves there too (the report draws every success file's curves in
+``success_overview.png``). The sweep resumes:
 finished runs are read back, interrupted ones continue from their last checkpoint. Several
 invocations may split one grid (disjoint policies or seeds, one root); ``--collect-only`` then writes
 the whole grid's file from their runs, training nothing.
@@ -118,6 +119,7 @@ def _missing(
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=["maniskill_pushcube"])
+    parser.add_argument("--plot", default=None, help="also draw the curves there (a PNG)")
     parser.add_argument("--policies", nargs="+", default=list(POLICIES))
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--steps", type=int, default=2500)
@@ -235,7 +237,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         out = root / out.name
     save_results(out, figures)
-    plot_success_curves(results, out.with_suffix(".png"))
+    if args.plot:
+        plot_success_curves(results, Path(args.plot))
     rows = [
         {
             "task": task,
@@ -255,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
             rows, ["task", "method", "metric", "mean", "std", "success_once", "seeds", "steps to 90%"]
         )
     )
-    print(f"saved {out} and {out.with_suffix('.png')}")
+    print(f"saved {out}" + (f" and {args.plot}" if args.plot else ""))
     return 0
 
 
