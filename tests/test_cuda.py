@@ -145,7 +145,7 @@ def test_trainer_bf16_autocast_step_on_cuda(amp):
 
 
 def test_captured_latency_benchmark_runs_and_matches_eager(tmp_path):
-    from benchmarks import bench_latency_cuda
+    from benchmarks.speed import bench_latency_cuda
 
     out = tmp_path / "latency_cuda.json"
     assert bench_latency_cuda.main(["--quick", "--no-peers", "--out", str(out)]) == 0

@@ -191,7 +191,7 @@ def evaluate(
         video_dir: write videos (mp4) there.
         video_episodes: how many episodes, from the first, get a video.
         noise_seed: seeds the policy's noise instead of ``seed`` (the episodes keep their seeds): how
-            much of a success figure is the sampler's noise draw (``benchmarks/bench_noise_draw.py``).
+            much of a success figure is the sampler's noise draw.
 
     Returns:
         The means over episodes of ``success_once``, ``success_at_end``, ``return``,

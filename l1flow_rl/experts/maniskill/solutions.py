@@ -2,8 +2,8 @@
 
 PushCube: ManiSkill's solution (``mani_skill.examples.motionplanning.panda.solutions.push_cube``)
 stops pushing with the cube 8.4-9.6 cm from the goal's centre (100 demos), within a few mm of the
-10 cm success radius. A policy imitating it stops about there too, and its failures end 0.1-1.6 cm
-short of the radius (benchmarks/results/main_job_failures.json). Ours pushes 5 cm further, so that
+10 cm success radius. A policy imitating it stops about there too, and its failures end just
+short of the radius. Ours pushes 5 cm further, so that
 the cube ends well inside the goal region.
 
 :data:`SOLUTION_TAGS` names each replaced solution; the demonstration cache keeps their plans apart
