@@ -60,6 +60,12 @@ def _net_state(actor):
 #: (loss, teacher sampler, student sampler, time scale): each student with each teacher it takes
 STUDENTS = {
     "consistency": (ConsistencyLoss, EDMHeunSampler(4), ConsistencySampler(3), EDM_SCALE),
+    "consistency_trajectory": (
+        lambda actor, teacher: ConsistencyLoss(actor, teacher=teacher, trajectory=True),
+        EDMHeunSampler(4),
+        ConsistencySampler(3, trajectory=True),
+        EDM_SCALE,
+    ),
     "onedp_d_edm": (OneDPDLoss, EDMHeunSampler(4), OneStepEDMSampler(stochastic=False), EDM_SCALE),
     "onedp_d_ddpm": (OneDPDLoss, DDPMSampler(), OneStepDDPMSampler(stochastic=False), 1.0),
     "onedp_s_edm": (OneDPSLoss, EDMHeunSampler(4), OneStepEDMSampler(), EDM_SCALE),
@@ -192,6 +198,33 @@ def test_a_teacher_or_sampler_that_does_not_fit_is_refused_in_one_line(
     with pytest.raises(ValueError, match=message) as err:
         loss_cls(_actor(student_sampler), teacher=_actor(teacher_sampler))
     assert "\n" not in str(err.value)
+
+
+def test_the_trajectory_objective_conditions_on_the_stop_level_and_deploys_without_it():
+    torch.manual_seed(0)
+    teacher, student = _actor(EDMHeunSampler(4)), _actor(ConsistencySampler(trajectory=True))
+    with pytest.raises(ValueError, match=r"build it with trajectory=False") as err:
+        ConsistencyLoss(student, teacher=teacher)  # a trajectory sampler for the plain objective
+    assert "\n" not in str(err.value)
+    loss_fn = ConsistencyLoss(student, teacher=teacher, trajectory=True)
+    stop = loss_fn.stop_level
+    assert torch.equal(stop(torch.tensor([0.02, 5.0, 80.0])), torch.zeros(3, stop.mlp[-1].out_features))
+    trainer = Trainer(student, loss_fn, total_steps=3, lr=1e-2, warmup_steps=0)
+    for step in range(3):
+        trainer.train_step(_batch(seed=step))
+    offsets = stop(torch.tensor([0.02, 5.0, 80.0])).abs().sum(-1)
+    assert offsets[0] == 0 and (offsets[1:] > 0).all()  # learnt, and still nothing at sigma_min
+    assert {k for k in trainer.state_dict()["loss_state"] if k.startswith("stop_level.")}
+
+
+def test_a_trajectory_sampler_jumps_to_sigma_min_by_ctms_ratio():
+    plain, ctm = ConsistencySampler(), ConsistencySampler(trajectory=True, clip_denoised=False)
+    assert plain.training_signature() != ctm.training_signature()
+    x = torch.randn(2, 16, 2)
+    sigma = torch.tensor([3.0, 3.0])
+    f = ctm.preconditioning.denoise(lambda xin, c: torch.zeros_like(xin), x, sigma)
+    got = ctm._denoiser(lambda xin, c: torch.zeros_like(xin))(x, sigma)
+    assert torch.allclose(got, (0.02 / 3.0) * x + (1 - 0.02 / 3.0) * f)
 
 
 # -- teacher= at config time --------------------------------------------------------------------------

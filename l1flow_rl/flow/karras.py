@@ -37,7 +37,15 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-__all__ = ["KarrasPreconditioning", "KarrasSchedule", "RawNet", "heun_step", "ict_delta", "pseudo_huber"]
+__all__ = [
+    "KarrasPreconditioning",
+    "KarrasSchedule",
+    "RawNet",
+    "heun_step",
+    "ict_delta",
+    "pseudo_huber",
+    "trajectory_jump",
+]
 
 #: one raw network evaluation F(x_in, c_noise) [B, H, A] (the observation condition is bound)
 RawNet = Callable[[Tensor, Tensor], Tensor]
@@ -131,6 +139,18 @@ def heun_step(
         return euler
     end_slope = (euler - denoiser(euler, next_sigma)) / s_next
     return x + (s_next - s) * (slope + end_slope) / 2
+
+
+def trajectory_jump(x: Tensor, denoised: Tensor, sigma: Tensor, stop: Tensor) -> Tensor:
+    """CTM's jump from ``x`` at ``sigma`` to level ``stop`` (each [] or [B]) given the network's clean
+    estimate ``denoised``: ``(stop / sigma) x + (1 - stop / sigma) denoised``. ``stop = sigma`` leaves x
+    where it is; a stop near 0 lands on the estimate.
+
+    >>> trajectory_jump(torch.ones(1, 2), torch.zeros(1, 2), torch.tensor(4.0), torch.tensor(1.0)).tolist()
+    [[0.25, 0.25]]
+    """
+    ratio = _per_sample(stop / sigma, x)
+    return ratio * x + (1 - ratio) * denoised
 
 
 def pseudo_huber(diff: Tensor, delta: float) -> Tensor:

@@ -18,7 +18,7 @@ import torch
 from torch import Tensor
 
 from l1flow_rl.flow.diffusion_schedule import DiffusionSchedule
-from l1flow_rl.flow.karras import KarrasPreconditioning, KarrasSchedule, heun_step
+from l1flow_rl.flow.karras import KarrasPreconditioning, KarrasSchedule, heun_step, trajectory_jump
 from l1flow_rl.flow.time import velocity_from_sample
 
 __all__ = [
@@ -331,7 +331,8 @@ class ConsistencySampler(_KarrasLevels):
     the clean chunk, then ``steps - 1`` times: renoise to an intermediate level and jump again (one NFE
     each). The intermediate levels are bins ``ceil(k * bins / steps)`` of the ``bins``-level rho
     schedule, k = 1 .. steps - 1: CP's bins 27 and 54 of 80 for 3 steps. Deterministic: no renoising
-    (zero noise throughout)."""
+    (zero noise throughout). ``trajectory``: the network was trained with CP's trajectory objective, so
+    each jump to sigma_min is CTM's, ``(sigma_min / sigma) x + (1 - sigma_min / sigma) f(x, sigma)``."""
 
     prediction = "consistency"
     boundary = True
@@ -345,8 +346,10 @@ class ConsistencySampler(_KarrasLevels):
         rho: float = 7.0,
         sigma_data: float = 0.5,
         clip_denoised: bool = True,
+        trajectory: bool = False,
     ) -> None:
         super().__init__(steps, sigma_min, sigma_max, rho, sigma_data, clip_denoised)
+        self.trajectory = bool(trajectory)
         if bins < 2:
             raise ValueError(f"bins must be >= 2, got {bins}")
         if steps > bins:
@@ -360,6 +363,20 @@ class ConsistencySampler(_KarrasLevels):
     def bin_sigmas(self, *, device: torch.device | str = "cpu") -> Tensor:
         """The ``bins`` training levels, sigma_max first (CP's discretisation)."""
         return self.schedule.sigmas(self.bins, device=device)
+
+    def training_signature(self) -> dict[str, Any]:
+        return {**super().training_signature(), "trajectory": self.trajectory}
+
+    def _denoiser(self, denoise: Denoiser) -> Callable[[Tensor, Tensor], Tensor]:
+        if not self.trajectory:
+            return super()._denoiser(denoise)
+        stop = torch.tensor(self.sigma_min)
+
+        def jump(x: Tensor, sigma: Tensor) -> Tensor:
+            out = trajectory_jump(x, self._precond.denoise(denoise, x, sigma), sigma, stop.to(x))
+            return out.clamp(-1.0, 1.0) if self.clip_denoised else out
+
+        return jump
 
     def chain_bins(self) -> list[int]:
         """The bins the chain renoises to after the first jump."""
