@@ -203,7 +203,7 @@ def test_a_teacher_or_sampler_that_does_not_fit_is_refused_in_one_line(
 def test_the_trajectory_objective_conditions_on_the_stop_level_and_deploys_without_it():
     torch.manual_seed(0)
     teacher, student = _actor(EDMHeunSampler(4)), _actor(ConsistencySampler(trajectory=True))
-    with pytest.raises(ValueError, match=r"build it with trajectory=False") as err:
+    with pytest.raises(ValueError, match=r"give both the same") as err:
         ConsistencyLoss(student, teacher=teacher)  # a trajectory sampler for the plain objective
     assert "\n" not in str(err.value)
     loss_fn = ConsistencyLoss(student, teacher=teacher, trajectory=True)
@@ -268,6 +268,8 @@ def checkpoints(tmp_path_factory):
         ),
         (["policy=consistency"], "ddpm", r"cannot teach policy\.loss='consistency'; it distils policy=edm"),
         (["policy=onedp_d"], "ddpm", r"'epsilon'-prediction network, .* use policy\.sampler='onedp_ddpm'"),
+        (["policy=onedp_s", "policy.sampler_kwargs.stochastic=false"], "edm", r"stochastic=True"),
+        (["policy=consistency", "policy.loss_kwargs.trajectory=false"], "edm", r"give both the same"),
     ],
 )
 def test_teacher_problems_are_one_line_each_at_config_time(checkpoints, tmp_path, args, teacher, message):
@@ -363,4 +365,5 @@ def test_a_student_trains_from_the_teacher_checkpoint_and_its_ledger_counts_both
         out = root / "cp3"
         eval_args = [*TASK_OVERRIDES, f"checkpoint={run / 'checkpoints' / 'best.pt'}", "eval.episodes=1"]
         assert main(["eval", *eval_args, "policy.sampler_kwargs.steps=3", f"run_dir={out}"]) == 0
-        assert json.loads((out / "eval.json").read_text())["sampler"]["nfe"] == 3
+        rescored = json.loads((out / "eval.json").read_text())
+        assert rescored["sampler"]["nfe"] == 3 and rescored["ledger"] == want

@@ -99,12 +99,7 @@ class ConsistencyLoss(DistillationLossBase):
         policy = self.policy
         self.huber_delta = huber_delta or ict_delta(policy.pred_horizon * policy.action_dim)
         self.sampler = policy.sampler
-        if bool(trajectory) != self.sampler.trajectory:
-            raise ValueError(
-                f"trajectory={trajectory}, but the student's sampler has trajectory="
-                f"{self.sampler.trajectory}; build it with trajectory={bool(trajectory)} "
-                "(policy.sampler_kwargs.trajectory)"
-            )
+        self._check_student_sampler(trajectory=trajectory)
         self.trajectory = bool(trajectory)
         # The target network's parameters: a detached copy, moved towards the student's each call.
         self.__dict__["_target"] = self.actor_network_params.data.clone()
@@ -113,6 +108,16 @@ class ConsistencyLoss(DistillationLossBase):
             cond_dim = policy.obs_horizon * policy.encoder.feature_dim
             self.stop_level = StopLevelCondition(cond_dim, self.sampler.sigma_min).to(device)
             self.target_stop_level = copy.deepcopy(self.stop_level).requires_grad_(False)
+
+    @classmethod
+    def student_sampler_problem(cls, sampler, loss_kwargs):
+        trajectory = bool(loss_kwargs.get("trajectory", False))
+        if getattr(sampler, "trajectory", trajectory) != trajectory:
+            return (
+                f"policy.loss_kwargs.trajectory={trajectory}, but the student's sampler has trajectory="
+                f"{sampler.trajectory}; give both the same (policy.sampler_kwargs.trajectory={trajectory})"
+            )
+        return None
 
     # -- the target network ------------------------------------------------------------------
     def _target_leaves(self) -> list[tuple[Tensor, Tensor]]:

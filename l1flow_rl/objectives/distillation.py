@@ -11,7 +11,7 @@ unfit checkpoint before any work.
 from __future__ import annotations
 
 import abc
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import torch
 from tensordict import TensorDictBase
@@ -149,6 +149,17 @@ class DistillationLossBase(ChunkLossBase):
 
     def _setup(self) -> None:
         """What a subclass builds or checks once the student and the teacher are in place."""
+
+    @classmethod
+    def student_sampler_problem(cls, sampler: ChunkSampler, loss_kwargs: dict[str, Any]) -> str | None:
+        """Why the student's ``sampler`` does not fit this loss with ``loss_kwargs`` (None: it does). The
+        loss raises it when built; the config check (``teacher_problems``) reports it before any work."""
+        return None
+
+    def _check_student_sampler(self, **loss_kwargs: Any) -> None:
+        problem = self.student_sampler_problem(self.policy.sampler, loss_kwargs)
+        if problem:
+            raise ValueError(problem)
 
     @property
     def teacher(self) -> ChunkPolicy:

@@ -63,11 +63,16 @@ class OneDPDLoss(DistillationLossBase):
                 f"the generator reads a {sampler.num_train_timesteps}-step DDPM network, the teacher was "  # type: ignore[attr-defined]
                 f"trained with {steps} steps (policy.sampler_kwargs.num_train_timesteps)"
             )
-        if sampler.stochastic != self.stochastic:  # type: ignore[attr-defined]
-            raise ValueError(
-                f"{type(self).__name__} trains a {'stochastic' if self.stochastic else 'deterministic'} "
-                f"generator; build its sampler with stochastic={self.stochastic}"
+        self._check_student_sampler()
+
+    @classmethod
+    def student_sampler_problem(cls, sampler, loss_kwargs):
+        if getattr(sampler, "stochastic", cls.stochastic) != cls.stochastic:
+            return (
+                f"{cls.__name__} trains a {'stochastic' if cls.stochastic else 'deterministic'} generator; "
+                f"build its sampler with stochastic={cls.stochastic} (policy.sampler_kwargs.stochastic)"
             )
+        return None
 
     def _fake_clean(self, obs: TensorDictBase, generated: Tensor, noisy: Tensor, level: Tensor) -> Tensor:
         """The generator distribution's clean-chunk estimate at ``noisy``: the chunk itself here."""

@@ -82,6 +82,19 @@ def _reads_teacher(sampler: str | None) -> str | None:
     return getattr(make_sampler(sampler), "teacher_prediction", None) if sampler in sampler_names() else None
 
 
+def _student_sampler_problems(loss: type, plain: Mapping[str, Any]) -> list[str]:
+    """The loss's own objection to the student's sampler (e.g. OneDP-S's stochastic generator)."""
+    policy = plain["policy"]
+    if policy.get("sampler") not in sampler_names():
+        return []
+    try:
+        sampler = make_sampler(policy["sampler"], **dict(policy.get("sampler_kwargs") or {}))
+    except (TypeError, ValueError):  # the sampler check reports it
+        return []
+    problem = loss.student_sampler_problem(sampler, dict(policy.get("loss_kwargs") or {}))
+    return [problem] if problem else []
+
+
 def _student_loss(cfg: Mapping[str, Any]) -> type | None:
     name = _select(cfg, "policy.loss")
     return get_loss(name) if name in loss_names() else None
@@ -102,16 +115,17 @@ def teacher_problems(cfg: DictConfig | Mapping[str, Any], command: str) -> list[
             return [f"teacher={path!r}: policy.loss={name!r} trains from demonstrations alone; drop teacher="]
         return []
     methods = [_TEACHER_POLICY.get(p, p) for p in loss.teacher_predictions]
+    problems = _student_sampler_problems(loss, plain)
     if not path:
         return [
+            *problems,
             f"teacher: policy.loss={name!r} distils a teacher; pass teacher=<checkpoint of a "
-            f"{' or '.join(f'policy={m}' for m in methods)} run> (its checkpoints/best.pt)"
+            f"{' or '.join(f'policy={m}' for m in methods)} run> (its checkpoints/best.pt)",
         ]
     try:  # the recorded config only: the tensors are mapped, not read
         saved = _plain(load_checkpoint(path, mmap=True)["config"])
     except CheckpointReadError as err:
-        return [f"teacher={path!r}: {err}"]
-    problems = []
+        return [*problems, f"teacher={path!r}: {err}"]
     checks = (("was trained on another task", TASK_FIELDS), ("has another network", NETWORK_FIELDS))
     for what, fields in checks:
         diffs = [
