@@ -227,6 +227,21 @@ def test_a_trajectory_sampler_jumps_to_sigma_min_by_ctms_ratio():
     assert torch.allclose(got, (0.02 / 3.0) * x + (1 - 0.02 / 3.0) * f)
 
 
+def test_a_distilled_teachers_ledger_keeps_its_own_teacher_and_old_checkpoints_count_their_steps():
+    from l1flow_rl.workspace.teacher import teacher_ledger
+
+    grand = {"stage": "teacher", "policy": "edm", "steps": 300, "batch_size": 64, "checkpoint": "edm.pt"}
+    state = {"ledger": [grand, {"stage": "own", "policy": "consistency", "steps": 50, "batch_size": 64}]}
+    assert teacher_ledger(state, "cp.pt") == [
+        grand,
+        {"stage": "teacher", "policy": "consistency", "steps": 50, "batch_size": 64, "checkpoint": "cp.pt"},
+    ]
+    old = {"config": {"policy": {"name": "ddpm"}, "train": {"batch_size": 32}}, "step": 1000}
+    assert teacher_ledger(old, "ddpm.pt") == [
+        {"stage": "teacher", "policy": "ddpm", "steps": 1000, "batch_size": 32, "checkpoint": "ddpm.pt"}
+    ]
+
+
 # -- teacher= at config time --------------------------------------------------------------------------
 
 
@@ -333,7 +348,7 @@ def test_edm_trains_evaluates_and_rescores_at_another_step_count(edm_teacher):
     root, teacher = edm_teacher
     result = json.loads((teacher.parents[1] / "eval.json").read_text())
     assert result["sampler"]["name"] == "edm_heun" and result["sampler"]["nfe"] == 35
-    assert result["ledger"] == [{"stage": "own", "policy": "edm", "steps": 20}]
+    assert result["ledger"] == [{"stage": "own", "policy": "edm", "steps": 20, "batch_size": 16}]
     assert result["total_steps_with_teacher"] == 20
     out = root / "edm_eval19"
     args = [*TASK_OVERRIDES, f"checkpoint={teacher}", "eval.episodes=1", f"run_dir={out}"]
@@ -349,8 +364,8 @@ def test_a_student_trains_from_the_teacher_checkpoint_and_its_ledger_counts_both
     args = [*E2E, f"policy={policy}", f"teacher={teacher}", f"data_dir={root / 'data'}", f"run_dir={run}"]
     assert main(["train", *args]) == 0
     want = [
-        {"stage": "teacher", "policy": "edm", "steps": 20, "checkpoint": str(teacher)},
-        {"stage": "own", "policy": policy, "steps": 20},
+        {"stage": "teacher", "policy": "edm", "steps": 20, "batch_size": 16, "checkpoint": str(teacher)},
+        {"stage": "own", "policy": policy, "steps": 20, "batch_size": 16},
     ]
     result = json.loads((run / "eval.json").read_text())
     assert result["episodes"] == 1 and result["sampler"]["nfe"] == 1

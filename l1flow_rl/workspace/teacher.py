@@ -18,7 +18,7 @@ Example:
     >>> print(*teacher_problems(cfg, "train"))  # doctest: +ELLIPSIS
     teacher: policy.loss='consistency' distils a teacher; pass teacher=<checkpoint of a policy=edm run> ...
     >>> ledger = [{"stage": "teacher", "policy": "edm", "steps": 3000, "checkpoint": "t.pt"}]
-    >>> own = own_stage("consistency", 500)
+    >>> own = own_stage("consistency", 500, batch_size=256)
     >>> total_steps([*ledger, own])
     3500
 """
@@ -156,9 +156,9 @@ def teacher_problems(cfg: DictConfig | Mapping[str, Any], command: str) -> list[
     return problems
 
 
-def own_stage(policy: str, steps: int) -> dict[str, Any]:
-    """This run's entry of the ledger."""
-    return {"stage": "own", "policy": policy, "steps": int(steps)}
+def own_stage(policy: str, steps: int, batch_size: int | None = None) -> dict[str, Any]:
+    """This run's entry of the ledger (with its batch size, so that steps convert to epochs)."""
+    return {"stage": "own", "policy": policy, "steps": int(steps), "batch_size": batch_size}
 
 
 def total_steps(ledger: list[dict[str, Any]]) -> int:
@@ -170,9 +170,12 @@ def teacher_ledger(state: dict[str, Any], path: str) -> list[dict[str, Any]]:
     """The stages a teacher checkpoint's weights went through, each marked as the teacher's: its own
     ledger (a distilled teacher lists its own teacher too), or for a checkpoint written before ledgers,
     its step count."""
-    stages = state.get("ledger") or [own_stage(state["config"]["policy"]["name"], state["step"])]
+    stages = state.get("ledger")
+    if not stages:
+        cfg = state["config"]
+        stages = [own_stage(cfg["policy"]["name"], state["step"], cfg["train"]["batch_size"])]
     return [
-        {**entry, "stage": "teacher" if entry["stage"] == "own" else entry["stage"], "checkpoint": str(path)}
+        {**entry, "stage": "teacher", "checkpoint": str(path)} if entry["stage"] == "own" else entry
         for entry in stages
     ]
 
@@ -181,4 +184,4 @@ def load_teacher(path: str | Path, device: torch.device) -> tuple[TensorDictModu
     """The teacher actor (EMA weights, frozen, in eval mode) and its ledger."""
     actor, _ = load_actor(path, use_ema=True, map_location=device)
     actor.requires_grad_(False)
-    return actor, teacher_ledger(load_checkpoint(path), str(path))
+    return actor, teacher_ledger(load_checkpoint(path, mmap=True), str(path))  # its config and counters

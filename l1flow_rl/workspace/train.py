@@ -114,7 +114,7 @@ def run_train(cfg: DictConfig) -> int:
                 "action_dim": action_dim,
                 "dataset": str(dataset),
                 "sampler_rng": get_buffer_rng(buffer),
-                "ledger": [*ledger, own_stage(pcfg.name, trainer.step)],
+                "ledger": [*ledger, own_stage(pcfg.name, trainer.step, tcfg.batch_size)],
             }
 
         def load(saved: dict[str, Any]) -> None:
@@ -127,7 +127,7 @@ def run_train(cfg: DictConfig) -> int:
                 metrics = trainer.train_step(buffer.sample().to(device))
                 run.step_done(trainer.step, metrics, trainer.ema_actor, last=trainer.step == tcfg.steps)
         summary = {"task": cfg.task.name, "policy": pcfg.name, "steps": trainer.step, "demos": cfg.demos.num}
-        stages = [*ledger, own_stage(pcfg.name, trainer.step)]
+        stages = [*ledger, own_stage(pcfg.name, trainer.step, tcfg.batch_size)]
         run.records["ledger"] = stages  # history.json (and the final checkpoints)
         run.report_extra.update(ledger=stages, total_steps_with_teacher=total_steps(stages))
         run.finish(trainer.ema_actor, summary)
