@@ -91,8 +91,8 @@ def test_heun_with_an_exact_denoiser_lands_on_the_data():
 
     x = torch.randn(4, 16, 2) * 80
     levels = torch.cat([KarrasSchedule().sigmas(5), torch.zeros(1)])
-    for s, s_next in itertools.pairwise(levels):
-        x = heun_step(denoiser, x, s, s_next)
+    for i, (s, s_next) in enumerate(itertools.pairwise(levels)):
+        x = heun_step(denoiser, x, s, s_next, to_zero=i == len(levels) - 2)
     assert torch.allclose(x, target.expand_as(x), atol=1e-5)
 
 
@@ -187,3 +187,13 @@ def test_policy_edm_composes_and_a_wrong_sampler_is_refused_at_config_time():
         compose_config(["policy=edm", "policy.sampler=edm_consistency"])
     with pytest.raises(ConfigValidationError, match=r"steps must be >= 1"):
         compose_config(["policy=edm", "policy.sampler_kwargs.steps=0"])
+
+
+def test_the_heun_sampler_exports_as_one_program():
+    # the last step's Euler-only form is decided by the step count, not by reading a value back
+    from l1flow_rl.export.program import DeployablePolicy, example_inputs
+
+    actor = _actor(EDMHeunSampler(3), timestep_scale=1000.0).eval()
+    program = torch.export.export(DeployablePolicy(actor), example_inputs(actor), strict=False)
+    obs, noise = torch.randn(1, 2, 5), torch.randn(1, 16, 2)
+    assert torch.allclose(program.module()(obs, noise), actor.policy(obs, noise=noise), atol=1e-5)

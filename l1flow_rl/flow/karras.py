@@ -127,15 +127,21 @@ class KarrasSchedule:
 
 
 def heun_step(
-    denoiser: Callable[[Tensor, Tensor], Tensor], x: Tensor, sigma: Tensor, next_sigma: Tensor
+    denoiser: Callable[[Tensor, Tensor], Tensor],
+    x: Tensor,
+    sigma: Tensor,
+    next_sigma: Tensor,
+    *,
+    to_zero: bool = False,
 ) -> Tensor:
     """One step of EDM's Heun solver of the probability-flow ODE dx/dsigma = (x - D(x, sigma)) / sigma,
     from ``sigma`` to ``next_sigma`` ([] or [B] each): an Euler step, corrected by the slope at its end
-    unless ``next_sigma`` is 0 (2 evaluations of ``denoiser(x, sigma)``, 1 for the last step to 0)."""
+    unless the step ends at 0 (``to_zero``; said by the caller, so that no value is read back): 2
+    evaluations of ``denoiser(x, sigma)``, 1 for the last step to 0."""
     s, s_next = _per_sample(sigma, x), _per_sample(next_sigma, x)
     slope = (x - denoiser(x, sigma)) / s
     euler = x + (s_next - s) * slope
-    if bool((next_sigma == 0).all()):
+    if to_zero:
         return euler
     end_slope = (euler - denoiser(euler, next_sigma)) / s_next
     return x + (s_next - s) * (slope + end_slope) / 2

@@ -321,8 +321,8 @@ class EDMHeunSampler(_KarrasLevels):
         levels = torch.cat([levels, levels.new_zeros(1)])
         clean = self._denoiser(denoise)
         x = x_init * levels[0]
-        for sigma, next_sigma in itertools.pairwise(levels):
-            x = heun_step(clean, x, sigma, next_sigma)
+        for i, (sigma, next_sigma) in enumerate(itertools.pairwise(levels)):
+            x = heun_step(clean, x, sigma, next_sigma, to_zero=i == self.steps - 1)
         return x
 
 
