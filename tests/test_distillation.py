@@ -145,6 +145,29 @@ def test_onedp_s_score_network_learns_on_the_generators_chunks_not_on_data():
     assert any(not torch.equal(p, b) for p, b in zip(score_params, before, strict=True))
 
 
+def test_a_generator_reads_its_network_as_the_teacher_does_at_its_fixed_level():
+    # EDM: D(sigma_init z, sigma_init), so on the teacher's weights it is the teacher's one-step denoiser
+    torch.manual_seed(0)
+    z, out = torch.randn(3, 16, 2), torch.randn(3, 16, 2)
+    seen = []
+
+    def net(x, c):
+        seen.append((x.clone(), c.clone()))
+        return out
+
+    got = OneStepEDMSampler(sigma_init=1.7).generate(net, z)
+    c_skip, c_out, c_in, c_noise = EDMHeunSampler().preconditioning.scalings(torch.tensor(1.7))
+    assert torch.allclose(got, c_skip * 1.7 * z + c_out * out)
+    assert torch.allclose(seen[0][0], c_in * 1.7 * z) and torch.allclose(seen[0][1], c_noise.expand(3))
+    # DDPM: the epsilon network at step t_init, x0 = (z - sqrt(1 - a) eps) / sqrt(a)
+    ddpm = OneStepDDPMSampler(t_init=65)
+    a = ddpm.schedule.alphas_cumprod[65]
+    steps = []
+    got = ddpm.generate(lambda x, t: steps.append(t) or out, z)
+    assert torch.allclose(got, (z - (1 - a).sqrt() * out) / a.sqrt())
+    assert steps[0].tolist() == [65.0] * 3
+
+
 def test_onedp_d_reads_no_score_network_and_its_fake_side_is_the_generators_chunk():
     loss_fn = OneDPDLoss(_actor(OneStepEDMSampler(stochastic=False)), teacher=_actor(EDMHeunSampler(4)))
     assert loss_fn.extra_parameters() == [] and not hasattr(loss_fn, "score_network")
