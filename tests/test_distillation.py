@@ -168,6 +168,20 @@ def test_a_generator_reads_its_network_as_the_teacher_does_at_its_fixed_level():
     assert steps[0].tolist() == [65.0] * 3
 
 
+def test_onedp_s_score_network_resumes_from_the_checkpoint():
+    teacher = _actor(EDMHeunSampler(4))
+    loss_fn = OneDPSLoss(_actor(OneStepEDMSampler()), teacher=teacher)
+    trainer = Trainer(loss_fn.actor_network, loss_fn, total_steps=2, lr=1e-2, warmup_steps=0)
+    trainer.train_step(_batch())
+    state = trainer.state_dict()
+    assert set(state["loss_state"]) == {f"score_network.{k}" for k in loss_fn.score_network.state_dict()}
+    other = OneDPSLoss(_actor(OneStepEDMSampler()), teacher=teacher)
+    Trainer(other.actor_network, other, total_steps=2).load_state_dict(state)
+    theirs = other.score_network.state_dict()
+    assert all(torch.equal(theirs[k], v) for k, v in loss_fn.score_network.state_dict().items())
+    assert not all(torch.equal(theirs[k], v) for k, v in teacher.policy.state_dict().items())
+
+
 def test_onedp_d_reads_no_score_network_and_its_fake_side_is_the_generators_chunk():
     loss_fn = OneDPDLoss(_actor(OneStepEDMSampler(stochastic=False)), teacher=_actor(EDMHeunSampler(4)))
     assert loss_fn.extra_parameters() == [] and not hasattr(loss_fn, "score_network")
