@@ -29,6 +29,12 @@ MODULES = [
     "l1flow_rl.objectives.regression",
     "l1flow_rl.export.pretrained",
     "l1flow_rl.finetune.proposal_cache",
+    "l1flow_rl.flow.karras",
+    "l1flow_rl.objectives.edm",
+    "l1flow_rl.objectives.consistency",
+    "l1flow_rl.objectives.onedp_d",
+    "l1flow_rl.objectives.onedp_s",
+    "l1flow_rl.workspace.teacher",
 ]
 
 

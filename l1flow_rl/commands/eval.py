@@ -14,8 +14,9 @@ from l1flow_rl.evaluation.plan import resolve_plan, task_from
 from l1flow_rl.evaluation.rescore import eval_sampler
 from l1flow_rl.export.pretrained import CONFIG_FILE, load_pretrained_for_eval
 from l1flow_rl.utils.device import resolve_device
-from l1flow_rl.workspace.checkpoint import load_actor
+from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
 from l1flow_rl.workspace.report import format_summary
+from l1flow_rl.workspace.teacher import total_steps
 
 __all__ = ["run_eval", "write_eval_json"]
 
@@ -58,10 +59,12 @@ def run_eval(cfg: DictConfig) -> int:
         )
         return 2
     device = resolve_device(cfg.device)
+    ledger = None  # the training stages behind the weights (a pretrained folder does not keep them)
     if (Path(cfg.checkpoint) / CONFIG_FILE).is_file():  # a pretrained folder (l1flow_rl.export.pretrained)
         actor, train_cfg = load_pretrained_for_eval(cfg.checkpoint, map_location=device)
     else:
         actor, train_cfg = load_actor(cfg.checkpoint, use_ema=True, map_location=device)
+        ledger = load_checkpoint(cfg.checkpoint, mmap=True).get("ledger")
     trained = sampler_record(actor)
     name, kwargs = eval_sampler(train_cfg.policy, cfg.policy)
     if (name, kwargs) != (train_cfg.policy.sampler, dict(train_cfg.policy.sampler_kwargs or {})):
@@ -99,6 +102,8 @@ def run_eval(cfg: DictConfig) -> int:
         "sampler": {**(sampler_record(actor) or _samplerless(actor, result)), "trained_with": trained},
         **result,
     }
+    if ledger:
+        record.update(ledger=ledger, total_steps_with_teacher=total_steps(ledger))
     path = write_eval_json(run_dir / "eval.json", record)
     sampler = record["sampler"]
     print(

@@ -35,6 +35,7 @@ class AppConfig:
     # None: the run's own directory (hydra.run.dir, unique per run; see l1flow_rl.commands.cli)
     run_dir: str | None = None
     checkpoint: str | None = None
+    teacher: str | None = None  # distillation (policy=consistency|onedp_d|onedp_s): the teacher's checkpoint
     # l1flow-rl export: the pretrained folder to write, and whether it also gets the torch.export
     # program (policy.pt2) and the ONNX model (policy.onnx) of the 2-NFE call
     out: str | None = None

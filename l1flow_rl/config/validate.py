@@ -45,6 +45,7 @@ from l1flow_rl.modules.normalizer import NormalizerMode
 from l1flow_rl.networks.encoders import encoder_names, encoder_problems
 from l1flow_rl.objectives.finetune_registry import finetune_algorithm_names, finetune_algorithm_problems
 from l1flow_rl.objectives.registry import get_loss, loss_names, loss_problems
+from l1flow_rl.workspace.teacher import teacher_problems
 
 __all__ = [
     "BUILTIN_CHECKS",
@@ -191,6 +192,7 @@ BUILTIN_CHECKS: tuple[Check, ...] = (
     *finetune.CHECKS,
     finetune_algorithm_problems,
     quality_problems,
+    teacher_problems,
 )
 
 

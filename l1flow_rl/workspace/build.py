@@ -29,6 +29,8 @@ def build_actor(
     return L1FlowActor.from_config(policy_cfg, obs_shapes, action_dim, encoder_cfg)
 
 
-def build_loss(actor: L1FlowActor, policy_cfg: DictConfig | Mapping) -> LossModule:
+def build_loss(actor: L1FlowActor, policy_cfg: DictConfig | Mapping, **extra) -> LossModule:
+    """The policy config's loss on ``actor``; ``extra`` are arguments that do not come from
+    ``policy.loss_kwargs`` (a distillation loss's ``teacher``)."""
     p = _plain(policy_cfg)
-    return get_loss(p["loss"])(actor, **p.get("loss_kwargs", {}))
+    return get_loss(p["loss"])(actor, **p.get("loss_kwargs", {}), **extra)

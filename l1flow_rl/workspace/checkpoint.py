@@ -116,8 +116,11 @@ def save_checkpoint(path: str | Path, state: Mapping[str, Any]) -> Path:
     return path
 
 
-def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    """Load with ``weights_only=True``: tensors and builtins only, never arbitrary code.
+def load_checkpoint(
+    path: str | Path, map_location: str | torch.device = "cpu", *, mmap: bool = False
+) -> dict[str, Any]:
+    """Load with ``weights_only=True``: tensors and builtins only, never arbitrary code. ``mmap``: map
+    the tensors instead of reading them (a config check that reads only the recorded config).
 
     A missing, truncated or foreign file raises :class:`~l1flow_rl.errors.CheckpointReadError`
     naming the file. A file holding other Python objects is refused without torch's advice to
@@ -129,7 +132,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if not path.is_file():
         raise CheckpointNotFoundError(f"checkpoint {str(path)!r} does not exist")
     try:
-        state = torch.load(path, map_location=map_location, weights_only=True)
+        state = torch.load(path, map_location=map_location, weights_only=True, mmap=mmap)
     except pickle.UnpicklingError as err:  # objects beyond tensors and builtins: not ours
         found = re.search(r"GLOBAL (\S+)", str(err))
         what = f" (it holds {found.group(1)})" if found else ""
