@@ -19,10 +19,11 @@ from typing import Any
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from l1flow_rl.config.ranges import bounded
-from l1flow_rl.networks.registry import LEGACY_POLICY_KEYS, NETWORKS
 
 __all__ = [
+    "LEGACY_POLICY_KEYS",
     "MOVED_KEYS",
+    "NETWORK_FIELDS",
     "MovedKeyError",
     "NetworkConfig",
     "check_moved_keys",
@@ -31,8 +32,17 @@ __all__ = [
     "upgrade_saved_config",
 ]
 
+#: the UNet settings that lived under ``policy.`` before the network group: an old checkpoint's or
+#: pretrained folder's policy config still holds them
+LEGACY_POLICY_KEYS = ("down_dims", "timestep_embed_dim", "kernel_size", "n_groups", "timestep_scale")
 #: an override key from before the network group -> where it lives now
 MOVED_KEYS = {f"policy.{k}": f"network.{k}" for k in LEGACY_POLICY_KEYS}
+#: the settings each network reads (the network registry's, l1flow_rl.networks.registry.NETWORKS)
+SHARED_FIELDS = ("timestep_embed_dim", "timestep_scale")
+NETWORK_FIELDS = {
+    "unet": (*SHARED_FIELDS, "down_dims", "kernel_size", "n_groups"),
+    "mlp": (*SHARED_FIELDS, "hidden_dims", "activation", "layer_norm", "residual"),
+}
 
 
 @dataclass
@@ -90,23 +100,23 @@ def network_problems(cfg: DictConfig) -> list[str]:
     """The network block against its network: settings of the other network refused (naming them),
     the UNet's widths against its GroupNorm and the chunk length against its levels."""
     net = cfg.get("network") if isinstance(cfg, DictConfig) else None
-    if net is None or net.get("name") not in NETWORKS:  # an unknown name: the choices check
+    if net is None or net.get("name") not in NETWORK_FIELDS:  # an unknown name: the choices check
         return []
     name = net.name
-    own = set(NETWORKS[name].defaults)
-    shared = {f for f in own if all(f in spec.defaults for spec in NETWORKS.values())}
+    own = set(NETWORK_FIELDS[name])
     problems = []
     for field in NetworkConfig.__dataclass_fields__:
         value = net.get(field)
         if field == "name" or field in own or value is None:
             continue
-        owner = [n for n, spec in NETWORKS.items() if field in spec.defaults]
+        owner = "|".join(n for n, fields in NETWORK_FIELDS.items() if field in fields)
         problems.append(
-            f"network.{field}={_plain(value)}: a setting of network={'|'.join(owner)}; network={name} reads "
-            f"{sorted(own - shared)} (and {sorted(shared)}): set it to null or pick network={'|'.join(owner)}"
+            f"network.{field}={_plain(value)}: a setting of network={owner}; network={name} reads "
+            f"{sorted(own - set(SHARED_FIELDS))} (and {list(SHARED_FIELDS)}): set it to null or pick "
+            f"network={owner}"
         )
     if name == "unet" and net.get("down_dims"):
-        dims, groups = list(net.down_dims), net.get("n_groups") or NETWORKS["unet"].defaults["n_groups"]
+        dims, groups = list(net.down_dims), net.get("n_groups") or NetworkConfig.n_groups
         if any(d % groups for d in dims):
             problems.append(
                 f"network.down_dims={dims}: every width must be divisible by network.n_groups={groups}"

@@ -19,6 +19,7 @@ from typing import Any
 
 from torch import nn
 
+from l1flow_rl.config.network import LEGACY_POLICY_KEYS
 from l1flow_rl.networks.mlp import MLPDenoiser
 from l1flow_rl.networks.unet1d import ConditionalUnet1D
 
@@ -34,9 +35,6 @@ __all__ = [
 ]
 
 DEFAULT_NETWORK = "unet"
-#: the UNet settings that lived under ``policy.`` before the ``network`` group: an old checkpoint's or
-#: pretrained folder's policy config still holds them
-LEGACY_POLICY_KEYS = ("down_dims", "timestep_embed_dim", "kernel_size", "n_groups", "timestep_scale")
 
 
 @dataclass(frozen=True)
