@@ -320,3 +320,11 @@ def test_the_network_groups_fields_are_the_registrys_settings():
         name: set(spec.defaults) for name, spec in NETWORKS.items()
     }
     assert {f.name for f in fields(NetworkConfig)} == {"name"}.union(*NETWORK_FIELDS.values())
+
+
+def test_network_mlp_composes_on_every_task():
+    from l1flow_rl.config import load_task_config, task_names
+
+    for task in task_names():
+        cfg = compose_config([f"task={task}", "network=mlp"])
+        assert cfg.network.name == "mlp" and cfg.task.obs_mode == load_task_config(task).obs_mode
