@@ -161,9 +161,10 @@ class L1FlowActor(TensorDictModule):
         out_keys: Sequence[NestedKey] = ("action_chunk",),
     ) -> L1FlowActor:
         """Actor for the policy config, the encoder config (``None``: ``auto``), the network config
-        (the ``network`` group; ``None``: a config from before that group, whose ``policy`` block holds
-        the UNet's settings) and the dataset's observation entries (entry -> per-step shape: [D] flat,
-        [3, H, W] an image).
+        (the ``network`` group; ``None``: the UNet whose settings a ``policy`` block from before that
+        group holds, the group's defaults filling the rest: ``network_config`` in
+        :mod:`l1flow_rl.networks.registry`) and the dataset's observation entries (entry -> per-step
+        shape: [D] flat, [3, H, W] an image).
 
         The encoder comes from the encoder registry (``l1flow_rl.networks.encoders``): ``auto`` takes
         ``resnet18_gn`` when an entry is an image and ``state`` otherwise; a state-only encoder on

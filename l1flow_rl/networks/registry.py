@@ -14,12 +14,12 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any
 
 from torch import nn
 
-from l1flow_rl.config.network import LEGACY_POLICY_KEYS
+from l1flow_rl.config.network import LEGACY_POLICY_KEYS, NETWORK_FIELDS, NetworkConfig
 from l1flow_rl.networks.mlp import MLPDenoiser
 from l1flow_rl.networks.unet1d import ConditionalUnet1D
 
@@ -116,21 +116,21 @@ def make_network(
 
 def network_config(policy: Mapping[str, Any], network: Mapping[str, Any] | None) -> dict[str, Any]:
     """``{"name": ..., **settings}`` of the network a config describes: its ``network`` block (unset
-    settings dropped), or for a config from before that group (``network`` None) the UNet whose
-    settings its ``policy`` block holds.
+    settings dropped), or for a policy config from before that group (``network`` None) the UNet
+    whose settings its ``policy`` block holds, the network group's defaults
+    (:class:`~l1flow_rl.config.NetworkConfig`, 64/128/256) filling those it lacks, as
+    ``PolicyConfig`` filled them then.
 
     Example:
-        >>> network_config({"down_dims": [16, 32], "timestep_embed_dim": 16}, None)
-        {'name': 'unet', 'down_dims': [16, 32], 'timestep_embed_dim': 16}
+        >>> network_config({"down_dims": [16, 32], "timestep_embed_dim": 16}, None)["down_dims"]
+        [16, 32]
+        >>> network_config({"loss": "l1flow"}, {"name": "mlp", "hidden_dims": [64], "down_dims": None})
+        {'name': 'mlp', 'hidden_dims': [64]}
     """
     if network is not None:
         out = {k: v for k, v in dict(network).items() if v is not None}
         out.setdefault("name", DEFAULT_NETWORK)
         return out
     legacy = {k: policy[k] for k in LEGACY_POLICY_KEYS if policy.get(k) is not None}
-    if not legacy:
-        raise ValueError(
-            "no network settings: the network is the network config group (network=unet|mlp); pass its "
-            "block (e.g. build_actor(cfg.policy, shapes, action_dim, cfg.encoder, cfg.network))"
-        )
-    return {"name": DEFAULT_NETWORK, **legacy}
+    defaults = asdict(NetworkConfig())
+    return {"name": DEFAULT_NETWORK, **{k: defaults[k] for k in NETWORK_FIELDS["unet"]}, **legacy}

@@ -187,7 +187,7 @@ def run_finetune(cfg: DictConfig) -> int:
     with open_dict(cfg):  # the network is the checkpoint's
         cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)
         if bc_cfg.get("network") is not None:
-            cfg.network = bc_cfg.network
+            cfg.network = OmegaConf.merge(cfg.network, bc_cfg.network)
         if bc_cfg.get("encoder") is not None and "encoder" in cfg:
             cfg.encoder = OmegaConf.merge(cfg.encoder, bc_cfg.encoder)
     given_data = [*overrides_under("demos"), *overrides_under("data")]
