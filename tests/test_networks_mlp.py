@@ -249,8 +249,8 @@ def test_a_version_1_folder_reads_as_the_unet_its_policy_section_describes(tmp_p
 def test_network_config_reads_a_config_from_before_the_network_group():
     unet = {"timestep_embed_dim": 64, "timestep_scale": 1.0, "kernel_size": 5, "n_groups": 8}
     assert network_config({"down_dims": [8, 16]}, None) == {"name": "unet", **unet, "down_dims": [8, 16]}
-    # a policy config alone (no network block): the UNet PolicyConfig's defaults used to describe
-    assert network_config({"loss": "l1flow"}, None) == {"name": "unet", **unet, "down_dims": [64, 128, 256]}
+    with pytest.raises(ValueError, match="no network settings: the network is the network config group"):
+        network_config({"loss": "l1flow"}, None)  # today's policy config alone: where is its network?
     assert network_config({}, {"name": "mlp", "hidden_dims": [4], "down_dims": None}) == {
         "name": "mlp",
         "hidden_dims": [4],
@@ -267,6 +267,10 @@ def test_the_network_group_refuses_the_other_networks_settings_naming_them():
         compose_config(["network=mlp", "network.down_dims=[8,16]"])
     with pytest.raises(ConfigValidationError, match=r"network\.hidden_dims=\[8\]: a setting of network=mlp"):
         compose_config(["network.hidden_dims=[8]"])
+    with pytest.raises(
+        ConfigValidationError, match=r"network\.timestep_embed_dim=5: expected an even number"
+    ):
+        compose_config(["network=mlp", "network.timestep_embed_dim=5"])
     with pytest.raises(ConfigValidationError, match=r"policy\.pred_horizon=10: must be divisible by 4"):
         compose_config(["policy.pred_horizon=10", "policy.action_steps=4"])
     with pytest.raises(

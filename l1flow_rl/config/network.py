@@ -115,6 +115,9 @@ def network_problems(cfg: DictConfig) -> list[str]:
             f"{sorted(own - set(SHARED_FIELDS))} (and {list(SHARED_FIELDS)}): set it to null or pick "
             f"network={owner}"
         )
+    embed = net.get("timestep_embed_dim")
+    if isinstance(embed, int) and embed % 2:
+        problems.append(f"network.timestep_embed_dim={embed}: expected an even number (sin and cos halves)")
     if name == "unet" and net.get("down_dims"):
         dims, groups = list(net.down_dims), net.get("n_groups") or NetworkConfig.n_groups
         if any(d % groups for d in dims):

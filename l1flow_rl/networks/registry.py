@@ -118,13 +118,14 @@ def network_config(policy: Mapping[str, Any], network: Mapping[str, Any] | None)
     """``{"name": ..., **settings}`` of the network a config describes: its ``network`` block (unset
     settings dropped), or for a policy config from before that group (``network`` None) the UNet
     whose settings its ``policy`` block holds, the network group's defaults
-    (:class:`~l1flow_rl.config.NetworkConfig`, 64/128/256) filling those it lacks, as
-    ``PolicyConfig`` filled them then.
+    (:class:`~l1flow_rl.config.NetworkConfig`) filling those it lacks. A policy config that holds no
+    network setting and no network block is refused: today's config keeps the network in its
+    ``network`` block, and building the default UNet in its place would ignore what that block says.
 
     Example:
         >>> network_config({"down_dims": [16, 32], "timestep_embed_dim": 16}, None)["down_dims"]
         [16, 32]
-        >>> network_config({"loss": "l1flow"}, {"name": "mlp", "hidden_dims": [64], "down_dims": None})
+        >>> network_config({}, {"name": "mlp", "hidden_dims": [64], "down_dims": None})
         {'name': 'mlp', 'hidden_dims': [64]}
     """
     if network is not None:
@@ -132,5 +133,10 @@ def network_config(policy: Mapping[str, Any], network: Mapping[str, Any] | None)
         out.setdefault("name", DEFAULT_NETWORK)
         return out
     legacy = {k: policy[k] for k in LEGACY_POLICY_KEYS if policy.get(k) is not None}
+    if not legacy:
+        raise ValueError(
+            "no network settings: the network is the network config group (network=unet|mlp); pass its "
+            "block too (build_actor(cfg.policy, shapes, action_dim, cfg.encoder, cfg.network))"
+        )
     defaults = asdict(NetworkConfig())
     return {"name": DEFAULT_NETWORK, **{k: defaults[k] for k in NETWORK_FIELDS["unet"]}, **legacy}
