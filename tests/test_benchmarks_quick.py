@@ -528,7 +528,7 @@ def test_open_loop_error_reads_each_runs_checkpoint_on_the_same_windows(tmp_path
         args = [
             *TASK_OVERRIDES,
             f"policy={method}",
-            "policy.down_dims=[16,32]",
+            "network.down_dims=[16,32]",
             "demos.num=4",
             "train.steps=40",
             "train.batch_size=16",

@@ -63,7 +63,8 @@ def test_every_policy_config_composes(policy):
         ("train.stepz=3", "stepz"),
         ("train.steps=abc", "train.steps"),
         ("task=no_such_task", "task/no_such_task"),
-        ("policy.down_dims=12", "policy.down_dims"),
+        ("network.down_dims=12", "network.down_dims"),
+        ("policy.down_dims=[32,64,128]", "moved to network.down_dims"),
         ("eval.episodes=[1]", "eval.episodes"),
     ],
 )

@@ -210,7 +210,7 @@ def test_train_job_on_cuda_then_eval_of_its_checkpoint_on_cpu(tmp_path, env_devi
     common = [*TASK_OVERRIDES, "eval.num_envs=2"]
     train = [
         *common,
-        "policy.down_dims=[16,32]",
+        "network.down_dims=[16,32]",
         "demos.num=4",
         "train.steps=30",
         "train.batch_size=16",

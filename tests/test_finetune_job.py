@@ -25,8 +25,8 @@ BC = [
     "train.steps=20",
     "eval.episodes=1",
     "eval.num_envs=1",
-    "policy.down_dims=[16,32]",
-    "policy.timestep_embed_dim=16",
+    "network.down_dims=[16,32]",
+    "network.timestep_embed_dim=16",
     "task.max_episode_steps=30",
 ]
 

@@ -131,8 +131,8 @@ def tiny_checkpoint(tmp_path_factory):
         "train.steps=20",
         "eval.episodes=0",  # no evaluation: the benchmark rolls the checkpoint out itself
         "train.batch_size=16",
-        "policy.down_dims=[16,32]",
-        "policy.timestep_embed_dim=16",
+        "network.down_dims=[16,32]",
+        "network.timestep_embed_dim=16",
         f"data_dir={root / 'data'}",
         f"run_dir={run_dir}",
     ]

@@ -24,8 +24,8 @@ TINY = [
     "train.log_every=1",
     "train.warmup_steps=5",
     "train.lr=1e-3",
-    "policy.down_dims=[16,32]",
-    "policy.timestep_embed_dim=16",
+    "network.down_dims=[16,32]",
+    "network.timestep_embed_dim=16",
     "eval.episodes=2",
     "eval.num_envs=1",
     "task.max_episode_steps=30",
@@ -112,7 +112,7 @@ def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(
     assert "already holds a run" in capsys.readouterr().err
     base = ["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY, "resume=true"]
     for change, field in [
-        ("policy.down_dims=[16,64]", r"policy\.down_dims"),  # the network
+        ("network.down_dims=[16,64]", r"network\.down_dims"),  # the network
         ("train.steps=50", r"train\.steps: checkpoint has 40, config asks for 50"),  # the schedule
         ("demos.num=4", r"demos\.num: checkpoint has 3, config asks for 4"),  # the dataset
         ("policy.loss_kwargs.loss_type=mse", r"policy\.loss_kwargs\.loss_type"),  # the loss

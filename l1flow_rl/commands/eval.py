@@ -9,6 +9,7 @@ from typing import Any
 
 from omegaconf import DictConfig
 
+from l1flow_rl.config.overrides import overrides_under
 from l1flow_rl.evaluation.evaluator import evaluate, sampler_record
 from l1flow_rl.evaluation.plan import resolve_plan, task_from
 from l1flow_rl.evaluation.rescore import eval_sampler
@@ -58,6 +59,9 @@ def run_eval(cfg: DictConfig) -> int:
             "folder written by l1flow-rl export)"
         )
         return 2
+    given = sorted(overrides_under("network"))
+    if given:
+        raise ValueError(f"l1flow-rl eval takes the network from the checkpoint; {given} may not be given")
     device = resolve_device(cfg.device)
     ledger = None  # the training stages behind the weights (a pretrained folder does not keep them)
     if (Path(cfg.checkpoint) / CONFIG_FILE).is_file():  # a pretrained folder (l1flow_rl.export.pretrained)

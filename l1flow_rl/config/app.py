@@ -8,6 +8,7 @@ from l1flow_rl.config.data import DataConfig, DemosConfig
 from l1flow_rl.config.encoder import EncoderConfig
 from l1flow_rl.config.evaluation import EvalConfig
 from l1flow_rl.config.finetune import FinetuneConfig, OfflineConfig, OnlineConfig
+from l1flow_rl.config.network import NetworkConfig
 from l1flow_rl.config.policy import PolicyConfig
 from l1flow_rl.config.task import TaskConfig
 from l1flow_rl.config.toy import ToyConfig
@@ -22,6 +23,7 @@ class AppConfig:
 
     task: TaskConfig = field(default_factory=TaskConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
+    network: NetworkConfig = field(default_factory=NetworkConfig)
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     demos: DemosConfig = field(default_factory=DemosConfig)
     data: DataConfig = field(default_factory=DataConfig)

@@ -19,13 +19,6 @@ class PolicyConfig:
     obs_horizon: int = 2
     pred_horizon: int = 16
     action_steps: int = 8
-    down_dims: list[int] = field(default_factory=lambda: [64, 128, 256])
-    timestep_embed_dim: int = 64
-    kernel_size: int = 5
-    n_groups: int = 8
-    # t times this before the UNet's sinusoidal embedding; 1: raw t in [0, 1] as the official code
-    # (see ConditionalUnet1D), 1000: Diffusion Policy's range
-    timestep_scale: float = 1.0
     normalizer: str = "limits"  # actions: limits | gaussian | identity
     # Observations: limits blows up near-constant state dims (a 0.003-wide range scaled to [-1, 1]),
     # so states pass through raw by default, as in ManiSkill's baseline.

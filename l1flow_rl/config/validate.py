@@ -35,6 +35,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from l1flow_rl.config import finetune
 from l1flow_rl.config.data import PADDING_RULES, quality_problems
+from l1flow_rl.config.network import network_problems
 from l1flow_rl.config.task import CONTROL_KINDS, TaskConfig
 from l1flow_rl.config.train import LOGGERS
 from l1flow_rl.envs.registry import registered_simulators
@@ -43,6 +44,8 @@ from l1flow_rl.evaluation.protocols import protocol_names
 from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_problems, samplers_for
 from l1flow_rl.modules.normalizer import NormalizerMode
 from l1flow_rl.networks.encoders import encoder_names, encoder_problems
+from l1flow_rl.networks.mlp import ACTIVATIONS
+from l1flow_rl.networks.registry import network_names
 from l1flow_rl.objectives.finetune_registry import finetune_algorithm_names, finetune_algorithm_problems
 from l1flow_rl.objectives.registry import get_loss, loss_names, loss_problems
 from l1flow_rl.workspace.teacher import teacher_problems
@@ -66,9 +69,9 @@ class ConfigValidationError(ValueError):
 
 
 #: What each sub-command builds from the config, hence what must be checked for it:
-#: ``"policy"``: the method (sampler, loss and their options); ``"network"``: an encoder that must
-#: fit the task's observations. ``eval`` and ``export`` take both from the checkpoint (``eval`` checks a
-#: swapped sampler itself); a command not listed gets both.
+#: ``"policy"``: the method (sampler, loss and their options); ``"network"``: the chunk denoiser
+#: (``network.*``) and an encoder that must fit the task's observations. ``eval`` and ``export`` take
+#: both from the checkpoint (``eval`` checks a swapped sampler itself); a command not listed gets both.
 COMMAND_SCOPES: dict[str, frozenset[str]] = {
     "train": frozenset({"policy", "network"}),
     "eval": frozenset(),
@@ -89,6 +92,8 @@ BUILTIN_CHOICES: dict[str, Callable[[], Iterable[str]]] = {
     "policy.obs_normalizer": lambda: get_args(NormalizerMode),
     "train.logger": lambda: LOGGERS,
     "encoder.name": encoder_names,
+    "network.name": network_names,
+    "network.activation": lambda: sorted(ACTIVATIONS),
     "eval.protocol": protocol_names,
     "eval.val_sampler": sampler_names,
     "finetune.algorithm": finetune_algorithm_names,
@@ -222,6 +227,8 @@ def validate_config(cfg: DictConfig, command: str = "train") -> None:
     problems = _check_choices(cfg)
     if "policy" in scopes and "policy" in cfg:
         problems += check_policy(cfg.policy)
+    if "network" in scopes:
+        problems += network_problems(cfg)
     if "task" in cfg:
         problems += _check_task(cfg, scopes)
     for check in (*BUILTIN_CHECKS, *_CHECKS):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -98,7 +99,7 @@ class ConditionalUnet1D(nn.Module):
         if bad:
             raise ValueError(f"down_dims {down_dims}: every width must be divisible by n_groups={n_groups}")
         self.action_dim, self.global_cond_dim, self.down_dims = action_dim, global_cond_dim, down_dims
-        self.timestep_embed_dim = timestep_embed_dim
+        self.timestep_embed_dim, self.kernel_size, self.n_groups = timestep_embed_dim, kernel_size, n_groups
         if timestep_embed_dim:
             d = timestep_embed_dim
             self.time_mlp: nn.Module | None = nn.Sequential(
@@ -130,6 +131,16 @@ class ConditionalUnet1D(nn.Module):
             nn.Conv1d(down_dims[0], action_dim, 1),
         )
         self.horizon_multiple = 2 ** (len(down_dims) - 1)
+
+    def settings(self) -> dict[str, Any]:
+        """The constructor's settings beyond the data's sizes: what rebuilds this network."""
+        return {
+            "down_dims": list(self.down_dims),
+            "timestep_embed_dim": self.timestep_embed_dim,
+            "timestep_scale": self.timestep_scale,
+            "kernel_size": self.kernel_size,
+            "n_groups": self.n_groups,
+        }
 
     def forward(self, x: Tensor, t: Tensor | None, global_cond: Tensor | None = None) -> Tensor:
         """x: [B, H, A]; t: [B] (or None when built without a timestep); global_cond: [B, C]."""

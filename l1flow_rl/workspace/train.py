@@ -83,7 +83,7 @@ def run_train(cfg: DictConfig) -> int:
             buffer = make_train_buffer(cfg, episodes, seed=cfg.seed + rank)
             action_dim = int(episodes["action"].shape[-1])
             obs_shapes = _obs_shapes(episodes)
-            actor = build_actor(pcfg, obs_shapes, action_dim, cfg.get("encoder"))
+            actor = build_actor(pcfg, obs_shapes, action_dim, cfg.get("encoder"), cfg.get("network"))
             fit_normalizers(actor.policy, episodes, mode=pcfg.normalizer, obs_mode=pcfg.obs_normalizer)
             actor.to(device)
             extra = {} if teacher is None else {"teacher": teacher}
