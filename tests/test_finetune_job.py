@@ -14,8 +14,8 @@ pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-r
 
 from l1flow_rl import BestOfNActor, NoiseActor
 from l1flow_rl.commands.cli import main
+from l1flow_rl.finetune import loop as finetune_job
 from l1flow_rl.finetune.proposal_cache import ProposalCache
-from l1flow_rl.workspace import finetune as finetune_job
 from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_actor, load_checkpoint
 
 pytestmark = pytest.mark.maniskill

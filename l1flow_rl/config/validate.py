@@ -40,10 +40,10 @@ from l1flow_rl.config.train import LOGGERS
 from l1flow_rl.envs.registry import registered_simulators
 from l1flow_rl.evaluation.plan import eval_config_problems
 from l1flow_rl.evaluation.protocols import protocol_names
+from l1flow_rl.finetune.registry import finetune_problems
 from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_problems, samplers_for
 from l1flow_rl.modules.normalizer import NormalizerMode
 from l1flow_rl.networks.encoders import encoder_names, encoder_problems
-from l1flow_rl.objectives.finetune_registry import finetune_algorithm_names, finetune_algorithm_problems
 from l1flow_rl.objectives.registry import get_loss, loss_names, loss_problems
 
 __all__ = [
@@ -90,7 +90,6 @@ BUILTIN_CHOICES: dict[str, Callable[[], Iterable[str]]] = {
     "encoder.name": encoder_names,
     "eval.protocol": protocol_names,
     "eval.val_sampler": sampler_names,
-    "finetune.algorithm": finetune_algorithm_names,
     **finetune.CHOICES,
 }
 
@@ -189,7 +188,7 @@ BUILTIN_CHECKS: tuple[Check, ...] = (
     _check_val_sampler,
     eval_config_problems,
     *finetune.CHECKS,
-    finetune_algorithm_problems,
+    finetune_problems,
     quality_problems,
 )
 

@@ -33,23 +33,22 @@ import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
-from torchrl.objectives import SoftUpdate
 from tqdm import tqdm
 
 from l1flow_rl.config.overrides import overrides_under
+from l1flow_rl.finetune.buffers import RLBuffers
+from l1flow_rl.finetune.collect import OnlineCollector, round_stats
+from l1flow_rl.finetune.registry import builtin_algorithm_names, get_algorithm
 from l1flow_rl.modules.ema import DPEma, make_ema
-from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.workspace.checkpoint import (
     CheckpointMismatchError,
     ResumeMismatchError,
     load_actor,
     load_checkpoint,
 )
-from l1flow_rl.workspace.collect import OnlineCollector, round_stats
 from l1flow_rl.workspace.dataset import load_task_episodes, resolve_dataset
 from l1flow_rl.workspace.distributed import resolve_device
 from l1flow_rl.workspace.harness import Run
-from l1flow_rl.workspace.rl_data import RLBuffers
 
 __all__ = ["adopt_start_data", "check_extension", "run_finetune", "start_dataset"]
 
@@ -102,6 +101,12 @@ def update(
     if ema is not None:
         ema.update_parameters(loss.actor if averaged is None else averaged)
     return {k: v.detach() for k, v in out.items()}
+
+
+def other_blocks(algorithm) -> tuple[str, ...]:
+    """The built-in algorithms' blocks other than ``algorithm``'s: a run's config before the
+    per-algorithm folders recorded every algorithm's block, and a resume reads only its own."""
+    return tuple(f"finetune.{name}.*" for name in builtin_algorithm_names() if name != algorithm.name)
 
 
 def _crossed(every: int, before: int, now: int) -> bool:
@@ -190,7 +195,9 @@ def run_finetune(cfg: DictConfig) -> int:
             cfg.encoder = OmegaConf.merge(cfg.encoder, bc_cfg.encoder)
     given_data = [*overrides_under("demos"), *overrides_under("data")]
     adopt_start_data(cfg, bc_cfg, given_data)
-    algorithm = FINETUNE_ALGORITHMS[cfg.finetune.algorithm]
+    algorithm = get_algorithm(cfg.finetune.algorithm)
+    with open_dict(cfg):  # the algorithm's block with its defaults, as config.yaml and checkpoints record it
+        cfg.finetune[algorithm.name] = algorithm.settings_of(cfg.finetune)
     fcfg, off, on = cfg.finetune, cfg.offline, cfg.online
     plain = OmegaConf.to_container(cfg, resolve=True)
     # what rebuilds each acting module (load_actor): the BC policy's config, plus the algorithm's block
@@ -201,7 +208,7 @@ def run_finetune(cfg: DictConfig) -> int:
         cfg,
         job="finetune",
         device=device,
-        may_change=MAY_CHANGE,
+        may_change=(*MAY_CHANGE, *other_blocks(algorithm)),
         phases=("offline", "online"),
         log_every=0,  # logged per offline log_every updates and per online round, below
         checkpoint_every=0,  # checkpointed below: an online checkpoint also dumps the buffer
@@ -214,9 +221,7 @@ def run_finetune(cfg: DictConfig) -> int:
         dataset = start_dataset(cfg, bc_state, given_data)
         episodes = load_task_episodes(cfg, dataset)
         flow = copy.deepcopy(bc_actor)
-        loss = algorithm.build(flow, fcfg).to(device)
-        if getattr(loss, "proposal_cache", None) is not None:  # each seed draws its own cached proposals
-            loss.proposal_cache.seed = int(cfg.seed)
+        loss = algorithm.build(flow, fcfg, seed=int(cfg.seed)).to(device)
         start = algorithm.start_actor(loss)
         # With finetune.ema_power the averaged actor acts, is validated, tested and saved (the raw one
         # trains): measured on Square, constant-LR iterates of continued BC swung 0.16-0.68 in 8k updates
@@ -237,17 +242,13 @@ def run_finetune(cfg: DictConfig) -> int:
             policy = algorithm.with_flow(loss, ema.module) if averaged is flow else ema.module
         acting = ActingSwitch(start, policy)
         optimizer = torch.optim.Adam([p for p in loss.parameters() if p.requires_grad], lr=float(fcfg.lr))
-        # a loss without critics (filtered BC) has no targets to move
-        has_targets = hasattr(loss, "target_qvalue_network_params")
-        target_update = SoftUpdate(loss, tau=float(fcfg.tau)) if has_targets else None
+        target_update = algorithm.target_update(loss, float(fcfg.tau))
         buffers = RLBuffers(
             cfg,
             episodes,
             loss.rl_horizon,
             seed=int(cfg.seed),
-            online_keys=algorithm.online_keys,
-            online_anchor_key=algorithm.online_anchor_key,
-            successful_episodes_only=algorithm.successful_episodes_only,
+            **algorithm.buffer_options(),
         )
         kept, given = buffers.demo_episodes["kept"], buffers.demo_episodes["given"]
         if kept < given:  # said, not silent: a mixed-quality set's failed episodes train nothing here

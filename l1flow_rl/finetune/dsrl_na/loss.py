@@ -28,11 +28,11 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 
-from l1flow_rl.finetune.noise_actor import NoiseActor, NoisePolicy
+from l1flow_rl.finetune.base import ChunkCriticLoss
+from l1flow_rl.finetune.dsrl.actor import NoiseActor, NoisePolicy
+from l1flow_rl.finetune.dsrl.loss import sac_actor_terms
 from l1flow_rl.finetune.proposal_cache import ProposalCache
 from l1flow_rl.networks.critic import ChunkCritic, critic_module
-from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
-from l1flow_rl.objectives.dsrl import sac_actor_terms
 from l1flow_rl.utils.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
 
 __all__ = ["DSRLNALoss"]
