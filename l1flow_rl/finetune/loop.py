@@ -1,4 +1,4 @@
-"""``l1flow-rl finetune finetune=qc|fql|dsrl checkpoint=BC.pt``: a BC policy improved with rewards.
+"""``l1flow-rl finetune finetune=<algorithm> checkpoint=BC.pt``: a BC policy improved with rewards.
 
     l1flow-rl finetune finetune=qc checkpoint=runs/bc/checkpoints/best.pt task=maniskill_pickcube \\
         online.steps=100000 eval.episodes=100 online.eval_every=10000
@@ -14,6 +14,8 @@
    diagnostics and the collected episodes' success; validation every ``online.eval_every`` env steps.
 4. The chosen policy (best validation, the start included) on the test seeds: ``eval.json``.
 
+The loop talks to the algorithm through :class:`~l1flow_rl.finetune.base.Learner` (what it updates,
+acts with and saves) and :class:`~l1flow_rl.finetune.base.FinetuneAlgorithm` (the data it needs).
 The run directory, resume (``resume=true``, exact: the online buffer and every RNG are in the
 checkpoint; a finished run resumed with more ``online.steps`` goes on as the longer run would have),
 checkpoints, validation and the report are the harness's
@@ -26,6 +28,7 @@ from __future__ import annotations
 import copy
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,10 +39,11 @@ from tensordict.nn import TensorDictModuleBase
 from tqdm import tqdm
 
 from l1flow_rl.config.overrides import overrides_under
+from l1flow_rl.finetune.base import FinetuneAlgorithm, Learner
 from l1flow_rl.finetune.buffers import RLBuffers
 from l1flow_rl.finetune.collect import OnlineCollector, round_stats
 from l1flow_rl.finetune.registry import builtin_algorithm_names, get_algorithm
-from l1flow_rl.modules.ema import DPEma, make_ema
+from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.workspace.checkpoint import (
     CheckpointMismatchError,
     ResumeMismatchError,
@@ -50,7 +54,15 @@ from l1flow_rl.workspace.dataset import load_task_episodes, resolve_dataset
 from l1flow_rl.workspace.distributed import resolve_device
 from l1flow_rl.workspace.harness import Run
 
-__all__ = ["adopt_start_data", "check_extension", "run_finetune", "start_dataset"]
+__all__ = [
+    "Finetune",
+    "Start",
+    "adopt_start_data",
+    "check_extension",
+    "load_start",
+    "run_finetune",
+    "start_dataset",
+]
 
 #: fields a resumed run may change beside the harness's: the cadences, and the two phases' lengths
 #: (only to extend the run: :func:`check_extension`)
@@ -63,6 +75,276 @@ MAY_CHANGE = (
     "offline.steps",
     "online.steps",
 )
+
+
+def run_finetune(cfg: DictConfig) -> int:
+    """The job: the BC start and the algorithm, then inside the harness's run the start's validation,
+    the offline phase, the online phase and the report. Returns the exit code."""
+    if not cfg.checkpoint:
+        print("l1flow-rl finetune: pass checkpoint=PATH (the L1 Flow BC checkpoint to fine-tune)")
+        return 2
+    device = resolve_device(cfg.device)
+    start = load_start(cfg, device)
+    algorithm = get_algorithm(cfg.finetune.algorithm)
+    with open_dict(cfg):  # the algorithm's block with its defaults, as config.yaml and checkpoints record it
+        cfg.finetune[algorithm.name] = algorithm.settings_of(cfg.finetune)
+    configs = acting_configs(cfg)
+    with Run(
+        cfg,
+        job="finetune",
+        device=device,
+        may_change=(*MAY_CHANGE, *other_blocks(algorithm)),
+        phases=("offline", "online"),
+        log_every=0,  # logged per offline log_every updates and per online round, below
+        checkpoint_every=0,  # checkpointed below: an online checkpoint also dumps the buffer
+        eval_every=0,
+        history_keys=("loss_qvalue", "q_data_mean", "target_mean", "td_error_abs", "env_steps"),
+        ties="earliest",  # the start is validated first: no reported policy falls below it
+    ) as run:
+        if run.resumed is not None:  # before the data and the networks are built
+            check_extension(run.resumed["progress"], cfg, str(run.latest))
+        job = Finetune(cfg, run, start, algorithm, configs, device)
+        run.begin(job.state, job.load, step=job.step, total=int(cfg.offline.steps) + int(cfg.online.steps))
+        job.validate_start()
+        job.offline()
+        job.online()
+        run.finish(job.learner.acting, job.summary(), plot=_plot)
+    return 0
+
+
+@dataclass
+class Start:
+    """The BC checkpoint a run starts from: its actor (EMA weights), its checkpoint dict, and the
+    ``demos.*``/``data.*`` keys the command line sets (the rest is the start's)."""
+
+    actor: L1FlowActor
+    state: dict[str, Any]
+    given_data: list[str]
+
+
+def load_start(cfg: DictConfig, device: torch.device) -> Start:
+    """The BC checkpoint ``cfg.checkpoint``, checked against the task; ``cfg`` takes its network
+    (``policy``, ``encoder``) and, unless the command line sets them, its data (:func:`adopt_start_data`)."""
+    state = load_checkpoint(cfg.checkpoint)
+    actor, bc_cfg = load_actor(cfg.checkpoint, use_ema=True, map_location=device)
+    _check_task(bc_cfg, cfg, str(cfg.checkpoint))
+    with open_dict(cfg):  # the network is the checkpoint's
+        cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)
+        if bc_cfg.get("encoder") is not None and "encoder" in cfg:
+            cfg.encoder = OmegaConf.merge(cfg.encoder, bc_cfg.encoder)
+    given = [*overrides_under("demos"), *overrides_under("data")]
+    adopt_start_data(cfg, bc_cfg, given)
+    return Start(actor, state, given)
+
+
+def acting_configs(cfg: DictConfig) -> dict[str, dict[str, Any]]:
+    """What rebuilds each acting module (``load_actor``): the BC policy's config (``"start"``), and
+    with the algorithm's block as ``policy.finetune`` (``"tuned"``)."""
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    return {
+        "start": {**plain, "policy": plain["policy"]},
+        "tuned": {**plain, "policy": {**plain["policy"], "finetune": plain["finetune"]}},
+    }
+
+
+def other_blocks(algorithm: FinetuneAlgorithm) -> tuple[str, ...]:
+    """The built-in algorithms' blocks other than ``algorithm``'s, which a resume may find changed: a
+    run recorded before the per-algorithm folders holds every algorithm's block, a run now its own."""
+    return tuple(f"finetune.{name}.*" for name in builtin_algorithm_names() if name != algorithm.name)
+
+
+class Finetune:
+    """One fine-tuning run inside the harness's :class:`~l1flow_rl.workspace.harness.Run`: the data, the
+    :class:`~l1flow_rl.finetune.base.Learner`, the replay buffers and the progress, with the loop's
+    steps as methods (:meth:`validate_start`, :meth:`offline`, :meth:`online`) and the harness's
+    hooks (:meth:`state`, :meth:`load`, :meth:`step`)."""
+
+    def __init__(
+        self,
+        cfg: DictConfig,
+        run: Run,
+        start: Start,
+        algorithm: FinetuneAlgorithm,
+        configs: dict[str, dict[str, Any]],
+        device: torch.device,
+    ) -> None:
+        self.cfg, self.run, self.start, self.algorithm = cfg, run, start, algorithm
+        self.configs, self.device = configs, device
+        self.dataset = start_dataset(cfg, start.state, start.given_data)
+        episodes = load_task_episodes(cfg, self.dataset)
+        self.learner = Learner(
+            algorithm,
+            copy.deepcopy(start.actor),
+            cfg.finetune,
+            seed=int(cfg.seed),
+            device=device,
+            ema_n_averaged=start.state.get("ema_n_averaged"),
+        )
+        self.acting = ActingSwitch(self.learner.start, self.learner.acting)
+        self.buffers = RLBuffers(
+            cfg, episodes, self.learner.loss.rl_horizon, seed=int(cfg.seed), **algorithm.buffer_options()
+        )
+        kept, given = self.buffers.demo_episodes["kept"], self.buffers.demo_episodes["given"]
+        if kept < given:  # said, not silent: a mixed-quality set's failed episodes train nothing here
+            tqdm.write(f"{algorithm.name}: trains on the {kept} of {given} demonstrations that succeed")
+        run.records["demo_episodes"] = [dict(self.buffers.demo_episodes)]
+        run.records.setdefault("rounds", [])
+        self.progress = {
+            "offline_updates": 0,
+            "online_updates": 0,
+            "env_steps": 0,
+            "rounds": 0,
+            "started": False,
+        }
+        self.online_buffer: str | None = None  # the buffer dump the last checkpoint names
+        self.describe_start = False  # while the start is validated: a checkpoint saves it as the BC actor
+
+    # -- the harness's hooks ------------------------------------------------------------------------
+    def step(self) -> int:
+        """One counter for both phases: offline updates, then env steps."""
+        return self.progress["offline_updates"] + self.progress["env_steps"]
+
+    def updates(self) -> int:
+        return self.progress["offline_updates"] + self.progress["online_updates"]
+
+    def state(self) -> dict[str, Any]:
+        state = self.learner.state_dict()
+        if self.describe_start:
+            # the start is saved as the BC actor it is (DSRL's start acts through a NoiseActor, whose
+            # weights a BC config does not rebuild): best.pt of a run whose start won loads as BC
+            state.update(model=self.start.actor.state_dict(), ema=None)
+        return {
+            **state,
+            "config": self.configs["start" if self.describe_start else "tuned"],
+            "source_checkpoint": str(self.cfg.checkpoint),
+            "obs_shapes": {k: list(v) for k, v in self.start.state["obs_shapes"].items()},
+            "action_dim": int(self.start.state["action_dim"]),
+            "dataset": str(self.dataset),
+            "buffers": self.buffers.state_dict(),
+            "online_buffer": self.online_buffer,
+            "progress": dict(self.progress),
+        }
+
+    def load(self, resumed: dict[str, Any]) -> None:
+        self.learner.load_state_dict(resumed, str(self.run.latest))
+        if resumed.get("online_buffer"):
+            self.buffers.load_online(self.run.ckpt_dir / resumed["online_buffer"])
+        self.buffers.load_state_dict(resumed["buffers"])
+        self.progress.update(resumed["progress"])
+        self.online_buffer = resumed.get("online_buffer")
+
+    def save(self, dump_online: bool) -> None:
+        """A checkpoint; ``dump_online``: with the online buffer (a folder the checkpoint names)."""
+        if dump_online:
+            name = f"online_buffer_round{self.progress['rounds']}"
+            self.buffers.dump_online(self.run.ckpt_dir / name)
+            self.online_buffer = name
+        self.run.save()
+        for old in self.run.ckpt_dir.glob("online_buffer_round*"):  # latest.pt names another one now
+            if old.name != self.online_buffer:
+                shutil.rmtree(old, ignore_errors=True)
+
+    # -- the loop -----------------------------------------------------------------------------------
+    def validate_start(self) -> None:
+        """The start competes for ``best.pt``: a run never reports a policy below it."""
+        if self.progress["started"]:
+            return
+        self.describe_start = True
+        # the BC checkpoint itself, as state() saves it when it wins (not the warm-up actor)
+        self.run.validate(self.start.actor, 0, phase="start", env_steps=0, updates=0)
+        self.describe_start = False
+        self.progress["started"] = True
+
+    def offline(self) -> None:
+        """``offline.steps`` updates on the demonstrations, before any env step."""
+        off, run = self.cfg.offline, self.run
+        with run.phase("offline"):
+            while self.progress["offline_updates"] < off.steps:
+                metrics = self.learner.update(self.buffers.sample_offline().to(self.device))
+                self.progress["offline_updates"] += 1
+                n = self.progress["offline_updates"]
+                if n % self.cfg.finetune.log_every == 0 or n == off.steps:
+                    run.log(self.step(), {**metrics, "env_steps": 0.0}, prefix="offline")
+                if off.eval_every and n % off.eval_every == 0:
+                    run.validate(self.learner.acting, self.step(), phase="offline", env_steps=0, updates=n)
+                if n == off.steps or (off.checkpoint_every and n % off.checkpoint_every == 0):
+                    self.save(dump_online=False)
+                run.step_done(self.step(), metrics, self.learner.acting)  # a stop signal checkpoints here
+
+    def online(self) -> None:
+        """Rounds of collection, each followed by its updates, until ``online.steps`` env steps."""
+        with self.run.phase("online"):
+            if self.progress["env_steps"] >= self.cfg.online.steps:
+                return
+            with OnlineCollector(self.cfg, self.acting, self.device) as collector:
+                while self.progress["env_steps"] < self.cfg.online.steps:
+                    self.online_round(collector)
+
+    def updates_due(self, env_steps: int) -> int:
+        """Online updates owed after ``env_steps``: ``updates_per_step`` per env step past the warm-up
+        (QC/RLPD start after it)."""
+        on = self.cfg.online
+        return int(on.updates_per_step * max(0, env_steps - on.warmup_steps))
+
+    def online_round(self, collector: OnlineCollector) -> None:
+        """One round: collect (the start acts through the warm-up), store, update, log, validate, save."""
+        on, run, progress = self.cfg.online, self.run, self.progress
+        self.acting.trained = progress["env_steps"] >= on.warmup_steps
+        t0 = time.perf_counter()
+        data = collector.collect(progress["rounds"])
+        collect_s = time.perf_counter() - t0
+        stored = self.buffers.add_collected(data)
+        frames = int(data.numel())
+        before = progress["env_steps"]
+        progress["env_steps"] += frames
+        progress["rounds"] += 1
+        due = self.updates_due(progress["env_steps"])
+        t0, metrics = time.perf_counter(), {}
+        while progress["online_updates"] < due:
+            metrics = self.learner.update(self.buffers.sample_online().to(self.device))
+            progress["online_updates"] += 1
+        update_s = time.perf_counter() - t0
+        updates = due - self.updates_due(before)
+        record = {
+            **round_stats(data),
+            "env_steps": progress["env_steps"],
+            "steps_stored": stored,
+            "policy": "actor" if self.acting.trained else "start",
+            "env_steps_per_s": frames / collect_s,
+            "updates": updates,
+            "updates_per_s": updates / update_s if updates else None,
+            "online_windows": self.buffers.online_windows(),
+            "demo_only_batches": self.buffers.demo_only_batches,
+        }
+        run.records["rounds"].append(record)
+        numbers = {k: float(v) for k, v in record.items() if isinstance(v, (int, float))}
+        run.log(self.step(), {**metrics, **numbers}, prefix="online")
+        last = progress["env_steps"] >= on.steps
+        # an actor no update has touched (the warm-up) is not a candidate: FQL's mu is untrained then
+        if _crossed(on.eval_every, before, progress["env_steps"]) and self.updates() > 0 and not last:
+            run.validate(
+                self.learner.acting,
+                self.step(),
+                phase="online",
+                env_steps=progress["env_steps"],
+                updates=self.updates(),
+            )
+        if _crossed(on.checkpoint_every, before, progress["env_steps"]) or last:
+            self.save(dump_online=True)
+        run.step_done(self.step(), metrics, self.learner.acting)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "task": self.cfg.task.name,
+            "algorithm": self.cfg.finetune.algorithm,
+            "source_checkpoint": str(self.cfg.checkpoint),
+            "offline_updates": self.progress["offline_updates"],
+            "online_updates": self.progress["online_updates"],
+            "env_steps": self.progress["env_steps"],
+            "dataset": str(
+                self.dataset
+            ),  # what it trained on (a file grown by shifted replays says their cost)
+        }
 
 
 class ActingSwitch(TensorDictModuleBase):
@@ -78,35 +360,6 @@ class ActingSwitch(TensorDictModuleBase):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         return (self.actor if self.trained else self.start)(tensordict)
-
-
-def update(
-    loss,
-    optimizer: torch.optim.Optimizer,
-    target_update,
-    batch: TensorDictBase,
-    ema: DPEma | None = None,
-    averaged: torch.nn.Module | None = None,
-) -> dict[str, Any]:
-    """One update: every ``loss_*`` term summed, one Adam step, one Polyak step of the target critics,
-    one step of the EMA (``finetune.ema_power``) of ``averaged`` (default: the loss's acting actor).
-    Returns the loss's outputs (tensors: read to the host only when logged)."""
-    out = loss(batch)
-    total = sum(v for k, v in out.items() if k.startswith("loss_"))
-    optimizer.zero_grad(set_to_none=True)
-    total.backward()
-    optimizer.step()
-    if target_update is not None:
-        target_update.step()
-    if ema is not None:
-        ema.update_parameters(loss.actor if averaged is None else averaged)
-    return {k: v.detach() for k, v in out.items()}
-
-
-def other_blocks(algorithm) -> tuple[str, ...]:
-    """The built-in algorithms' blocks other than ``algorithm``'s: a run's config before the
-    per-algorithm folders recorded every algorithm's block, and a resume reads only its own."""
-    return tuple(f"finetune.{name}.*" for name in builtin_algorithm_names() if name != algorithm.name)
 
 
 def _crossed(every: int, before: int, now: int) -> bool:
@@ -179,221 +432,6 @@ def start_dataset(cfg: DictConfig, bc_state: dict, given: list[str]) -> Path:
     if saved and Path(saved).exists():
         return Path(saved)
     return resolve_dataset(cfg)
-
-
-def run_finetune(cfg: DictConfig) -> int:
-    if not cfg.checkpoint:
-        print("l1flow-rl finetune: pass checkpoint=PATH (the L1 Flow BC checkpoint to fine-tune)")
-        return 2
-    device = resolve_device(cfg.device)
-    bc_state = load_checkpoint(cfg.checkpoint)
-    bc_actor, bc_cfg = load_actor(cfg.checkpoint, use_ema=True, map_location=device)
-    _check_task(bc_cfg, cfg, str(cfg.checkpoint))
-    with open_dict(cfg):  # the network is the checkpoint's
-        cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)
-        if bc_cfg.get("encoder") is not None and "encoder" in cfg:
-            cfg.encoder = OmegaConf.merge(cfg.encoder, bc_cfg.encoder)
-    given_data = [*overrides_under("demos"), *overrides_under("data")]
-    adopt_start_data(cfg, bc_cfg, given_data)
-    algorithm = get_algorithm(cfg.finetune.algorithm)
-    with open_dict(cfg):  # the algorithm's block with its defaults, as config.yaml and checkpoints record it
-        cfg.finetune[algorithm.name] = algorithm.settings_of(cfg.finetune)
-    fcfg, off, on = cfg.finetune, cfg.offline, cfg.online
-    plain = OmegaConf.to_container(cfg, resolve=True)
-    # what rebuilds each acting module (load_actor): the BC policy's config, plus the algorithm's block
-    start_config = {**plain, "policy": plain["policy"]}
-    tuned_config = {**plain, "policy": {**plain["policy"], "finetune": plain["finetune"]}}
-
-    with Run(
-        cfg,
-        job="finetune",
-        device=device,
-        may_change=(*MAY_CHANGE, *other_blocks(algorithm)),
-        phases=("offline", "online"),
-        log_every=0,  # logged per offline log_every updates and per online round, below
-        checkpoint_every=0,  # checkpointed below: an online checkpoint also dumps the buffer
-        eval_every=0,
-        history_keys=("loss_qvalue", "q_data_mean", "target_mean", "td_error_abs", "env_steps"),
-        ties="earliest",  # the start is validated first: no reported policy falls below it
-    ) as run:
-        if run.resumed is not None:  # before the data and the networks are built
-            check_extension(run.resumed["progress"], cfg, str(run.latest))
-        dataset = start_dataset(cfg, bc_state, given_data)
-        episodes = load_task_episodes(cfg, dataset)
-        flow = copy.deepcopy(bc_actor)
-        loss = algorithm.build(flow, fcfg, seed=int(cfg.seed)).to(device)
-        start = algorithm.start_actor(loss)
-        # With finetune.ema_power the averaged actor acts, is validated, tested and saved (the raw one
-        # trains): measured on Square, constant-LR iterates of continued BC swung 0.16-0.68 in 8k updates
-        # Where the acting module wraps the trained BC flow (filtered BC: is it; QC: proposes with it),
-        # the EMA averages that flow, whose weights are the BC run's EMA: the average goes on from the
-        # BC run's counter, as if BC had gone on. From 0 it copied the first, shocked iterates (held L1
-        # Flow loss 0.022 -> 0.055 in 10 updates at 3e-4; continued: 0.022-0.023;
-        # benchmarks/results/finetune_shock_*.json). Otherwise (new networks act: a noise or one-step
-        # actor; a frozen flow) the EMA averages the acting module from 0.
-        flow_trains = any(p.requires_grad for p in flow.parameters())
-        averaged = flow if algorithm.with_flow is not None and flow_trains else loss.actor
-        ema = make_ema(averaged, power=float(fcfg.ema_power)) if fcfg.ema_power > 0 else None
-        if ema is not None and averaged is flow and bc_state.get("ema_n_averaged") is not None:
-            ema.n_averaged.copy_(bc_state["ema_n_averaged"])
-        if ema is None:
-            policy = loss.actor
-        else:
-            policy = algorithm.with_flow(loss, ema.module) if averaged is flow else ema.module
-        acting = ActingSwitch(start, policy)
-        optimizer = torch.optim.Adam([p for p in loss.parameters() if p.requires_grad], lr=float(fcfg.lr))
-        target_update = algorithm.target_update(loss, float(fcfg.tau))
-        buffers = RLBuffers(
-            cfg,
-            episodes,
-            loss.rl_horizon,
-            seed=int(cfg.seed),
-            **algorithm.buffer_options(),
-        )
-        kept, given = buffers.demo_episodes["kept"], buffers.demo_episodes["given"]
-        if kept < given:  # said, not silent: a mixed-quality set's failed episodes train nothing here
-            tqdm.write(f"{algorithm.name}: trains on the {kept} of {given} demonstrations that succeed")
-        run.records["demo_episodes"] = [dict(buffers.demo_episodes)]
-        progress = {"offline_updates": 0, "online_updates": 0, "env_steps": 0, "rounds": 0, "started": False}
-        saved = {"buffer": None, "describe_start": False}
-        run.records.setdefault("rounds", [])
-
-        def state() -> dict[str, Any]:
-            # the start is saved as the BC actor it is (DSRL's start acts through a NoiseActor, whose
-            # weights a BC config does not rebuild): best.pt of a run whose start won loads as BC
-            model = bc_actor if saved["describe_start"] else loss.actor
-            return {
-                "model": model.state_dict(),
-                # the acting module's weights with the averaged ones (what load_actor(use_ema) rebuilds)
-                "ema": None if ema is None or saved["describe_start"] else policy.state_dict(),
-                "ema_n_averaged": None if ema is None else ema.n_averaged.clone(),
-                "config": start_config if saved["describe_start"] else tuned_config,
-                "source_checkpoint": str(cfg.checkpoint),
-                "obs_shapes": {k: list(v) for k, v in bc_state["obs_shapes"].items()},
-                "action_dim": int(bc_state["action_dim"]),
-                "dataset": str(dataset),
-                "loss": loss.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "buffers": buffers.state_dict(),
-                "online_buffer": saved["buffer"],
-                "progress": dict(progress),
-            }
-
-        def load(resumed: dict[str, Any]) -> None:
-            loss.load_state_dict(resumed["loss"])
-            if ema is not None:
-                if resumed.get("ema_n_averaged") is None:
-                    raise CheckpointMismatchError(  # a checkpoint from before the field
-                        f"{run.latest} holds no EMA: resume it with finetune.ema_power=0"
-                    )
-                policy.load_state_dict(resumed["ema"])
-                ema.n_averaged.copy_(resumed["ema_n_averaged"])
-            optimizer.load_state_dict(resumed["optimizer"])
-            if resumed.get("online_buffer"):
-                buffers.load_online(run.ckpt_dir / resumed["online_buffer"])
-            buffers.load_state_dict(resumed["buffers"])
-            progress.update(resumed["progress"])
-            saved["buffer"] = resumed.get("online_buffer")
-
-        def step() -> int:  # one counter for both phases: offline updates, then env steps
-            return progress["offline_updates"] + progress["env_steps"]
-
-        def save(dump_online: bool) -> None:
-            if dump_online:
-                name = f"online_buffer_round{progress['rounds']}"
-                buffers.dump_online(run.ckpt_dir / name)
-                saved["buffer"] = name
-            run.save()
-            for old in run.ckpt_dir.glob("online_buffer_round*"):  # latest.pt names another one now
-                if old.name != saved["buffer"]:
-                    shutil.rmtree(old, ignore_errors=True)
-
-        run.begin(state, load, step=step, total=int(off.steps) + int(on.steps))
-        if not progress["started"]:  # the start competes: a run never reports a policy below it
-            saved["describe_start"] = True
-            # the BC checkpoint itself, as state() saves it when it wins (not the warm-up actor)
-            run.validate(bc_actor, 0, phase="start", env_steps=0, updates=0)
-            saved["describe_start"] = False
-            progress["started"] = True
-
-        with run.phase("offline"):
-            while progress["offline_updates"] < off.steps:
-                metrics = update(
-                    loss, optimizer, target_update, buffers.sample_offline().to(device), ema, averaged
-                )
-                progress["offline_updates"] += 1
-                n = progress["offline_updates"]
-                if n % fcfg.log_every == 0 or n == off.steps:
-                    run.log(step(), {**metrics, "env_steps": 0.0}, prefix="offline")
-                if off.eval_every and n % off.eval_every == 0:
-                    run.validate(policy, step(), phase="offline", env_steps=0, updates=n)
-                if n == off.steps or (off.checkpoint_every and n % off.checkpoint_every == 0):
-                    save(dump_online=False)
-                run.step_done(step(), metrics, policy)  # a stop signal checkpoints here
-
-        with run.phase("online"):
-            if progress["env_steps"] < on.steps:
-                with OnlineCollector(cfg, acting, device) as collector:
-                    while progress["env_steps"] < on.steps:
-                        acting.trained = progress["env_steps"] >= on.warmup_steps
-                        t0 = time.perf_counter()
-                        data = collector.collect(progress["rounds"])
-                        collect_s = time.perf_counter() - t0
-                        stored = buffers.add_collected(data)
-                        frames = int(data.numel())
-                        before = progress["env_steps"]
-                        progress["env_steps"] += frames
-                        progress["rounds"] += 1
-                        # updates_per_step per env step past the warm-up (QC/RLPD start after it)
-                        due = int(on.updates_per_step * max(0, progress["env_steps"] - on.warmup_steps))
-                        t0, metrics = time.perf_counter(), {}
-                        while progress["online_updates"] < due:
-                            batch = buffers.sample_online().to(device)
-                            metrics = update(loss, optimizer, target_update, batch, ema, averaged)
-                            progress["online_updates"] += 1
-                        update_s = time.perf_counter() - t0
-                        updates = due - int(on.updates_per_step * max(0, before - on.warmup_steps))
-                        record = {
-                            **round_stats(data),
-                            "env_steps": progress["env_steps"],
-                            "steps_stored": stored,
-                            "policy": "actor" if acting.trained else "start",
-                            "env_steps_per_s": frames / collect_s,
-                            "updates": updates,
-                            "updates_per_s": updates / update_s if updates else None,
-                            "online_windows": buffers.online_windows(),
-                            "demo_only_batches": buffers.demo_only_batches,
-                        }
-                        run.records["rounds"].append(record)
-                        numbers = {k: float(v) for k, v in record.items() if isinstance(v, (int, float))}
-                        run.log(step(), {**metrics, **numbers}, prefix="online")
-                        last = progress["env_steps"] >= on.steps
-                        # an actor no update has touched (the warm-up) is not a candidate: FQL's mu is
-                        # untrained then (measured: 0.02 against the start's 0.46 on PushCube)
-                        trained = progress["offline_updates"] + progress["online_updates"] > 0
-                        if _crossed(on.eval_every, before, progress["env_steps"]) and trained and not last:
-                            run.validate(
-                                policy,
-                                step(),
-                                phase="online",
-                                env_steps=progress["env_steps"],
-                                updates=progress["offline_updates"] + progress["online_updates"],
-                            )
-                        if _crossed(on.checkpoint_every, before, progress["env_steps"]) or last:
-                            save(dump_online=True)
-                        run.step_done(step(), metrics, policy)
-
-        summary = {
-            "task": cfg.task.name,
-            "algorithm": fcfg.algorithm,
-            "source_checkpoint": str(cfg.checkpoint),
-            "offline_updates": progress["offline_updates"],
-            "online_updates": progress["online_updates"],
-            "env_steps": progress["env_steps"],
-            "dataset": str(dataset),  # what it trained on (a file grown by shifted replays says their cost)
-        }
-        run.finish(policy, summary, plot=_plot)
-    return 0
 
 
 def _plot(run) -> None:
