@@ -6,6 +6,7 @@ on the point-mass double; and the settings block of any algorithm checked at con
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -160,3 +161,18 @@ def test_a_checkpoint_recording_every_algorithms_block_still_resumes_and_evaluat
     assert isinstance(load_actor(latest)[0], L1FlowActor)
     assert main([*args, f"run_dir={run_dir}", *FINETUNE, "eval.episodes=0", "resume=true"]) == 0
     assert load_checkpoint(latest)["progress"]["env_steps"] == 120
+
+
+def test_every_declared_range_of_every_built_in_algorithm_is_enforced_at_config_time():
+    from l1flow_rl.config.ranges import declared_ranges
+
+    tried = 0
+    for name in builtin_algorithm_names():
+        for key, rng, _ in declared_ranges(get_algorithm(name).settings, prefix=f"finetune.{name}"):
+            for value in [] if rng is None else rng.outside():
+                text = f"[{value}]" if rng.each else str(value)
+                says = rf"{re.escape(key)}=.*: expected {re.escape(rng.describe())}"
+                with pytest.raises(ConfigValidationError, match=says):
+                    compose_config([f"finetune={name}", f"{key}={text}"], command="finetune")
+                tried += 1
+    assert tried >= 8  # num_samples, alpha, noise_bound, init_alpha, distill_samples, hidden dims, ...
