@@ -7,8 +7,8 @@ passes through the flow, and :class:`~l1flow_rl.DSRLLoss` never evaluates it.
 
 Steering the noise moves the executed actions only as far as the sampler lets the noise matter. The
 2-NFE L1 Flow sampler, trained on unimodal demonstrations, is nearly deterministic in its noise
-(``benchmarks/results/noise_authority.json``: on PickCube the executed positions move ~5 % as much
-over noise draws as over states). A bounded residual on the executed window instead (Policy
+(``benchmarks/results/noise_authority.json``: on PickCube the executed positions move far less over
+noise draws than over states). A bounded residual on the executed window instead (Policy
 Decorator's) was tried and retired: its actor followed the critics' extrapolation (their bias on
 its data: ``benchmarks/results/critic_bias_maniskill_pickcube_residual.json``) and validated below its
 start.

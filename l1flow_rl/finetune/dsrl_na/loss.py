@@ -152,8 +152,8 @@ class DSRLNALoss(ChunkCriticLoss):
     def distill_loss(self, td: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
         """Q^W against Q^A of the decoded chunks, half on each observation's cached prior noises, half on
         a fresh draw of the actor's noise (decoded here): fitted on the prior alone, Q^W valued the
-        actor's w at 1.0-1.1 while Q^A's values were -0.2 (Can, 14k env steps): the actor climbed the
-        noise critic where it was never fitted."""
+        actor's w far above what Q^A gave the chunks they decode to: the actor climbed the noise critic
+        where it was never fitted."""
         obs = self.read_observation(td, self.tensor_keys.observation)
         prior, out = self._distill_prior(obs)
         with torch.no_grad():
