@@ -437,6 +437,24 @@ class Learner:
     Attributes: ``loss``; ``start``, the BC start that acts during the warm-up; ``acting``, what acts,
     is validated, tested and saved (the EMA where ``finetune.ema_power`` > 0, else ``loss.actor``);
     ``optimizer`` (Adam over the loss's trainable parameters); ``target_update``; ``ema``.
+
+    Example:
+        >>> from omegaconf import OmegaConf
+        >>> from tensordict import TensorDict
+        >>> from l1flow_rl import L1FlowActor
+        >>> from l1flow_rl.config.finetune import FinetuneConfig
+        >>> from l1flow_rl.finetune.registry import get_algorithm
+        >>> flow = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
+        >>> cfg = OmegaConf.structured(FinetuneConfig(algorithm="filtered_bc"))
+        >>> learner = Learner(get_algorithm("filtered_bc"), flow, cfg)
+        >>> batch = TensorDict({"observation": torch.randn(4, 2, 5),
+        ...                     "action_chunk": torch.rand(4, 16, 2) * 2 - 1}, batch_size=[4])
+        >>> sorted(k for k in learner.update(batch) if k.startswith("loss_"))
+        ['loss_bc']
+        >>> learner.acting is flow, learner.target_update is None  # the flow acts; no critic, no target
+        (True, True)
+        >>> sorted(learner.state_dict())
+        ['ema', 'ema_n_averaged', 'loss', 'model', 'optimizer']
     """
 
     def __init__(
