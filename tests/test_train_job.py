@@ -58,6 +58,13 @@ def test_train_writes_checkpoints_eval_and_plots(full_run):
         assert {"model", "ema", "optimizer", "scheduler", "config", "rng", "sampler_rng"} <= set(raw)
     assert (full_run / "loss.png").stat().st_size > 1000
     assert (full_run / "success.png").stat().st_size > 1000
+    # the test row names the weights it scored and their interval (the plot draws it there)
+    (test_row,) = [
+        e for e in json.loads((full_run / "history.json").read_text())["evals"] if e["split"] == "test"
+    ]
+    assert test_row["weights_step"] == result["selection"]["step"]
+    low, high = test_row["ci95"]["success_once"]
+    assert low <= test_row["success_once"] == result["success_once"] <= high
     assert (full_run / "config.yaml").is_file()
     assert list((full_run / "logs").rglob("*.csv")), "the CSV logger wrote nothing"
 

@@ -144,11 +144,13 @@ def write_folder(
 
     Args:
         actor: an :class:`~l1flow_rl.L1FlowActor` (not a best-of-N actor: its critics are not saved).
-        policy / encoder: the settings it was built with (the ``policy`` and ``encoder`` config groups,
-            or the keyword arguments given to :meth:`L1FlowActor.build`); horizons, sampler and
+        policy: the settings it was built with (the ``policy`` config group, or the keyword
+            arguments given to :meth:`L1FlowActor.build`); horizons, sampler and
             ``down_dims`` are read from the actor itself. Missing network settings take
             :meth:`L1FlowActor.build`'s defaults, and the folder is rebuilt before it is published, so
             settings that do not describe the actor are refused here, not at load time.
+        encoder: the encoder settings it was built with (the ``encoder`` config group), read as
+            ``policy`` is.
         task: the task config it was trained on (``l1flow-rl eval`` on the folder uses it).
         train_config: the whole run config, stored as train_config.json for provenance.
         source: where the weights came from (checkpoint path, step, EMA or raw weights).

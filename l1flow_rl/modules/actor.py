@@ -61,8 +61,8 @@ class L1FlowActor(TensorDictModule):
         **kwargs: Any,
     ) -> TensorDictBase:
         """One key in, one key out. Written out because TensorDictModule's generic path wraps each
-        output with ``TensorDict.from_any``, whose import probe costs ~0.4 ms per call: 5 % of a
-        batch-1 chunk on CPU."""
+        output with ``TensorDict.from_any``, whose import probe on every call is a noticeable share
+        of a batch-1 chunk's time on a CPU."""
         if args:
             raise ValueError(
                 f"{type(self).__name__} takes one TensorDict, got {len(args)} more positional arguments"

@@ -67,7 +67,8 @@ class ConditionalUnet1D(nn.Module):
         down_dims: channel widths per level (Diffusion Policy: 256/512/1024; ManiSkill state: 64/128/256).
         timestep_embed_dim: size of the sinusoidal timestep embedding; 0 builds a timestep-free
             network (plain regression), whose ``forward`` must get ``t=None``.
-        kernel_size, n_groups: conv kernel and GroupNorm groups (5 and 8 in Diffusion Policy).
+        kernel_size: the conv kernel (5 in Diffusion Policy).
+        n_groups: the GroupNorm groups (8 in Diffusion Policy).
         timestep_scale: t is multiplied by it before the sinusoidal embedding. 1 (default) feeds the
             raw flow time in [0, 1], as the official L1 Flow code does; there the embedding's fastest
             feature turns by one radian over the whole path, so the network barely resolves t. 1000

@@ -474,7 +474,9 @@ class Run:
                 chosen = load(self.best_path)
             result = ev(chosen, step, video_dir=self.run_dir / "videos", split="test")
             ev.close()
-            self.evals.append(ev.history_row(result))
+            # the test row names the weights it scored (not the run's last step) and their interval
+            ci95 = {k: list(v) for k, v in result.get("ci95", {}).items() if k.startswith("success")}
+            self.evals.append({**ev.history_row(result), "weights_step": selection["step"], "ci95": ci95})
             result = {**result, "selection": selection, "sampler": sampler_record(chosen)}
             (self.run_dir / "eval.json").write_text(json.dumps(result, indent=2))
             summary.update(

@@ -65,8 +65,8 @@ def run_train(cfg: DictConfig) -> int:
         log_every=tcfg.log_every,
         checkpoint_every=tcfg.checkpoint_every,
         eval_every=tcfg.eval_every,
-        # of equally validated checkpoints the latest: one Can run's steps 500 / 1,500 / 2,000 test
-        # 0.09 / 0.31 / 0.31 (100 episodes), and a 20-episode validation had tied 500 with 1,500
+        # of equally validated checkpoints the latest: a short validation can tie an under-trained
+        # early checkpoint with later ones that test far better, and ties are common at 20 episodes
         ties="latest",
     )
     with harness as run:

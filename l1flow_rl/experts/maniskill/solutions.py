@@ -22,8 +22,8 @@ SOLUTION_TAGS = {"PushCube-v1": "push5cm"}
 #: how much further than ManiSkill's solution ours pushes the cube (metres)
 PUSH_FURTHER = 0.05
 #: PushCube plans longer than this are refused (counted as failed seeds): with the deeper goal the
-#: screw motion takes 250-1000 steps on ~10 % of seeds (a wrist reconfiguration), far beyond the
-#: task's 150-step limit, while the rest take 70-150
+#: screw motion on a few seeds goes through a wrist reconfiguration that takes it far beyond the
+#: task's 150-step limit, while the rest fit in it
 MAX_PUSH_PLAN_STEPS = 150
 
 

@@ -11,7 +11,7 @@ Steering the noise moves the executed actions only as far as the sampler lets th
 noise draws than over states). A bounded residual on the executed window instead (Policy
 Decorator's) was tried and retired: its actor followed the critics' extrapolation (their bias on
 its data: ``benchmarks/results/critic_bias_maniskill_pickcube_residual.json``) and validated below its
-start.
+start (docs/finetune.md).
 """
 
 from __future__ import annotations
