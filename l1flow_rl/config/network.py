@@ -54,12 +54,11 @@ class NetworkConfig:
     # (see ConditionalUnet1D), 1000: Diffusion Policy's range
     timestep_scale: float = bounded(1.0, gt=0)
     # unet (null under mlp): ManiSkill's state UNet, 64/128/256 (the paper's: 256/512/1024, 128).
-    # (noqa: bounded() returns a dataclasses.field, whose callable default makes a fresh list)
-    down_dims: list[int] | None = bounded(lambda: [64, 128, 256], ge=1, each=True, optional=True)  # noqa: RUF009
+    down_dims: list[int] | None = bounded(lambda: [64, 128, 256], ge=1, each=True, optional=True)
     kernel_size: int | None = bounded(5, ge=1, optional=True)
     n_groups: int | None = bounded(8, ge=1, optional=True)
     # mlp (null under unet): hidden widths, QC's and FQL's 4 x 512
-    hidden_dims: list[int] | None = bounded(None, ge=1, each=True, optional=True)  # noqa: RUF009
+    hidden_dims: list[int] | None = bounded(None, ge=1, each=True, optional=True)
     activation: str | None = None  # gelu (QC, FQL) | mish
     layer_norm: bool | None = None  # LayerNorm in every hidden layer
     residual: bool | None = None  # pre-norm residual blocks instead of the plain stack
