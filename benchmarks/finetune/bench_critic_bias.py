@@ -6,7 +6,7 @@ For a fine-tuning run (``l1flow-rl finetune``) with at least one online checkpoi
 when it writes a new one) and loaded into the run's buffers (``RLBuffers``, as the run builds them).
 For each ``--config NAME="finetune.x=... finetune.y=..."`` and each seed, a fresh loss of the run's
 algorithm is built from the BC start (``cfg.checkpoint``), and ``--updates`` updates of
-``l1flow_rl.workspace.finetune.update`` (Adam at ``finetune.lr``, TorchRL ``SoftUpdate`` at
+``l1flow_rl.finetune.base.update`` (Adam at ``finetune.lr``, TorchRL ``SoftUpdate`` at
 ``finetune.tau``) run on ``RLBuffers.sample_online()`` batches; at update 0 (the fresh loss on the
 first batch) and at each ``--report-at`` update the batch's ``q_data_mean`` (the critics' mean value of
 the windows they train on), ``target_mean``, ``q_actor_mean``, ``entropy`` and ``alpha`` (where the loss
@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from benchmarks.lib.common import machine_info, parse_args, save_results
 from benchmarks.report.finetune import render_critic_bias
@@ -125,7 +125,7 @@ def mc_values(
 def parse_configs(items: list[str]) -> dict[str, list[str]] | str:
     """``NAME="finetune.a=1 finetune.b=2"`` items as {name: overrides}, each override checked against
     ``finetune``'s schema; or the one-line reason the first bad item is refused."""
-    from l1flow_rl.config.finetune import FinetuneConfig
+    from l1flow_rl.commands.cli import compose_config
 
     found: dict[str, list[str]] = {}
     for item in items:
@@ -143,9 +143,9 @@ def parse_configs(items: list[str]) -> dict[str, list[str]] | str:
         for o in overrides:
             if not o.startswith("finetune.") or "=" not in o:
                 return f"argument --config: {item!r}: {o!r} is not finetune.KEY=VALUE"
-        try:
-            OmegaConf.merge(OmegaConf.structured(FinetuneConfig), _finetune_overrides(overrides))
-        except Exception as err:  # omegaconf's: an unknown key, a wrong type
+        try:  # composed and validated as l1flow-rl finetune would (keys, types, ranges)
+            compose_config(overrides, command="finetune")
+        except Exception as err:  # hydra's, omegaconf's or the validator's: one line
             return f"argument --config: {item!r}: {str(err).splitlines()[0]}"
         found[name] = overrides
     return found
@@ -186,13 +186,15 @@ def load_run(run: Path) -> tuple[DictConfig, Any, Any]:
     from l1flow_rl.config.finetune import FinetuneConfig, OnlineConfig
     from l1flow_rl.config.network import upgrade_saved_config
     from l1flow_rl.config.task import TaskConfig
+    from l1flow_rl.finetune.loop import start_dataset
     from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
     from l1flow_rl.workspace.dataset import load_task_episodes
-    from l1flow_rl.workspace.finetune import start_dataset
 
     # a run from before the network group: its policy block's UNet settings move to a network block
     cfg = OmegaConf.create(upgrade_saved_config(OmegaConf.to_container(OmegaConf.load(run / "config.yaml"))))
-    cfg.finetune = OmegaConf.merge(OmegaConf.structured(FinetuneConfig), cfg.finetune)
+    schema = OmegaConf.structured(FinetuneConfig)
+    OmegaConf.set_struct(schema, False)  # the algorithms' own blocks are not in the common schema
+    cfg.finetune = OmegaConf.merge(schema, cfg.finetune)
     cfg.online = OmegaConf.merge(OmegaConf.structured(OnlineConfig), cfg.online)
     # typed as the job types it: a simulator's reader options read it by attribute (robosuite: state_keys)
     cfg.task = OmegaConf.merge(OmegaConf.structured(TaskConfig), cfg.task)
@@ -209,18 +211,11 @@ def load_run(run: Path) -> tuple[DictConfig, Any, Any]:
 
 
 def _buffers(cfg: DictConfig, episodes, loss, dump: Path, seed: int):
-    from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
-    from l1flow_rl.workspace.rl_data import RLBuffers
+    from l1flow_rl.finetune.buffers import RLBuffers
+    from l1flow_rl.finetune.registry import get_algorithm
 
-    alg = FINETUNE_ALGORITHMS[cfg.finetune.algorithm]
-    bufs = RLBuffers(
-        cfg,
-        episodes,
-        loss.rl_horizon,
-        seed=seed,
-        online_keys=alg.online_keys,
-        online_anchor_key=alg.online_anchor_key,
-    )
+    alg = get_algorithm(cfg.finetune.algorithm)
+    bufs = RLBuffers(cfg, episodes, loss.rl_horizon, seed=seed, **alg.buffer_options())
     bufs.load_online(dump)
     bufs.online.set_rng(torch.Generator().manual_seed(seed + 1))  # the dump's generator: seeded anew
     return bufs
@@ -255,11 +250,14 @@ def replay(cfg, bc_actor, episodes, dump: Path, seed: int, updates: int, report_
     """One fresh loss trained ``updates`` times on the dumped buffer: (curve, yardstick, loss settings)."""
     from torchrl.objectives import SoftUpdate
 
-    from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
-    from l1flow_rl.workspace.finetune import update
+    from l1flow_rl.finetune.base import update
+    from l1flow_rl.finetune.registry import get_algorithm
 
     torch.manual_seed(seed)
-    loss = FINETUNE_ALGORITHMS[cfg.finetune.algorithm].build(copy.deepcopy(bc_actor), cfg.finetune)
+    alg = get_algorithm(cfg.finetune.algorithm)
+    with open_dict(cfg):  # the algorithm's block over its defaults, as the fine-tuning job fills it
+        cfg.finetune[alg.name] = alg.settings_of(cfg.finetune)
+    loss = alg.build(copy.deepcopy(bc_actor), cfg.finetune)
     optimizer = torch.optim.Adam([p for p in loss.parameters() if p.requires_grad], lr=float(cfg.finetune.lr))
     target_update = SoftUpdate(loss, tau=float(cfg.finetune.tau))
     bufs = _buffers(cfg, episodes, loss, dump, seed)

@@ -32,6 +32,7 @@ import dataclasses
 from pathlib import Path
 
 import torch
+from omegaconf import open_dict
 from tensordict import TensorDict
 from torchrl.objectives import SoftUpdate
 
@@ -39,7 +40,7 @@ from benchmarks.lib.common import format_table, interleaved, machine_info, parse
 from benchmarks.speed.bench_env_throughput import measure, policy_in_loop, raw_in_process
 from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.config import NetworkConfig, PolicyConfig, load_task_config
-from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
+from l1flow_rl.finetune.registry import get_algorithm
 from l1flow_rl.workspace.build import build_actor
 
 #: what each figure motivated (kept in the JSON beside the figures)
@@ -91,7 +92,10 @@ def make_batch(batch: int, obs_dim: int, action_dim: int, policy: dict) -> Tenso
 
 def build_loss(algorithm: str, flow, overrides: list[str]):
     cfg = compose_config([f"finetune={algorithm}", *overrides], command="finetune")
-    return FINETUNE_ALGORITHMS[algorithm].build(flow, cfg.finetune), cfg.finetune
+    alg = get_algorithm(algorithm)
+    with open_dict(cfg):  # the algorithm's block over its defaults, as the fine-tuning job fills it
+        cfg.finetune[alg.name] = alg.settings_of(cfg.finetune)
+    return alg.build(flow, cfg.finetune), cfg.finetune
 
 
 def parts(loss, data: TensorDict) -> dict:

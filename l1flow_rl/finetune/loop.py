@@ -124,7 +124,8 @@ class Start:
 
 def load_start(cfg: DictConfig, device: torch.device) -> Start:
     """The BC checkpoint ``cfg.checkpoint``, checked against the task; ``cfg`` takes its network
-    (``policy``, ``network``, ``encoder``) and, unless the command line sets them, its data (:func:`adopt_start_data`)."""
+    (``policy``, ``network``, ``encoder``) and, unless the command line sets them, its data
+    (:func:`adopt_start_data`)."""
     state = load_checkpoint(cfg.checkpoint)
     actor, bc_cfg = load_actor(cfg.checkpoint, use_ema=True, map_location=device)
     _check_task(bc_cfg, cfg, str(cfg.checkpoint))
