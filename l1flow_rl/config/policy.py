@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from l1flow_rl.config.ranges import bounded
+
 __all__ = ["PolicyConfig"]
 
 
@@ -16,9 +18,11 @@ class PolicyConfig:
     sampler: str = "two_step"  # two_step | euler | velocity_euler | ddpm | ddim | direct
     sampler_kwargs: dict = field(default_factory=dict)
     loss_kwargs: dict = field(default_factory=dict)
-    obs_horizon: int = 2
-    pred_horizon: int = 16
-    action_steps: int = 8
+    # To, H, K: observed steps, predicted chunk, executed steps (To - 1 + K <= H; H a multiple of
+    # 2 ** (levels - 1) of the UNet)
+    obs_horizon: int = bounded(2, ge=1)
+    pred_horizon: int = bounded(16, ge=1)
+    action_steps: int = bounded(8, ge=1)
     down_dims: list[int] = field(default_factory=lambda: [64, 128, 256])
     timestep_embed_dim: int = 64
     kernel_size: int = 5

@@ -34,7 +34,10 @@ from typing import Any, get_args
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from l1flow_rl.config import finetune
+from l1flow_rl.config.app import AppConfig
 from l1flow_rl.config.data import PADDING_RULES, quality_problems
+from l1flow_rl.config.path_fields import path_problems
+from l1flow_rl.config.ranges import range_problems
 from l1flow_rl.config.task import CONTROL_KINDS, TaskConfig
 from l1flow_rl.config.train import LOGGERS
 from l1flow_rl.envs.registry import registered_simulators
@@ -43,6 +46,7 @@ from l1flow_rl.evaluation.protocols import protocol_names
 from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_problems, samplers_for
 from l1flow_rl.modules.normalizer import NormalizerMode
 from l1flow_rl.networks.encoders import encoder_names, encoder_problems
+from l1flow_rl.networks.encoders.resnet18_gn import WIDTHS
 from l1flow_rl.objectives.finetune_registry import finetune_algorithm_names, finetune_algorithm_problems
 from l1flow_rl.objectives.registry import get_loss, loss_names, loss_problems
 
@@ -52,6 +56,7 @@ __all__ = [
     "COMMAND_SCOPES",
     "ConfigValidationError",
     "check_policy",
+    "config_problems",
     "register_check",
     "register_choices",
     "validate_config",
@@ -61,7 +66,16 @@ Check = Callable[[DictConfig, str], list[str]]
 
 
 class ConfigValidationError(ValueError):
-    """One or more config fields hold values that cannot work; the message lists each."""
+    """One or more config fields hold values that cannot work; the message lists each, and
+    ``problems`` holds them, one line each (the CLI prints one line per problem)."""
+
+    def __init__(self, problems: str | list[str]) -> None:
+        self.problems = [problems] if isinstance(problems, str) else list(problems)
+        super().__init__(
+            f"{len(self.problems)} config value(s) cannot work:\n  " + "\n  ".join(self.problems)
+            if len(self.problems) > 1 or not isinstance(problems, str)
+            else problems
+        )
 
 
 #: What each sub-command builds from the config, hence what must be checked for it:
@@ -184,8 +198,34 @@ def _check_val_sampler(cfg: DictConfig, command: str) -> list[str]:
     return check_policy(method, sampler_field="eval.val_sampler")
 
 
+def _check_horizons(cfg: DictConfig, command: str) -> list[str]:
+    """The executed window [To - 1, To - 1 + K) lies inside the predicted chunk H (what
+    :class:`~l1flow_rl.modules.policy.ChunkPolicy` requires), once each horizon is in its range."""
+    p = cfg.get("policy") if isinstance(cfg, DictConfig) else None
+    if p is None or not all(isinstance(p.get(k), int) and p.get(k) >= 1 for k in _HORIZONS):
+        return []
+    if p.obs_horizon - 1 + p.action_steps <= p.pred_horizon:
+        return []
+    return [
+        f"policy.pred_horizon={p.pred_horizon}: expected >= policy.obs_horizon - 1 + policy.action_steps = "
+        f"{p.obs_horizon - 1 + p.action_steps} (the executed steps must fit the predicted chunk)"
+    ]
+
+
+_HORIZONS = ("obs_horizon", "pred_horizon", "action_steps")
+
+
+def _check_betas(cfg: DictConfig, command: str) -> list[str]:
+    betas = _select(cfg, "train.betas")
+    if betas is None or len(betas) == 2:
+        return []
+    return [f"train.betas={list(betas)}: expected two numbers (Adam's beta1, beta2)"]
+
+
 #: The rules that read more than one field, each defined beside what it validates.
 BUILTIN_CHECKS: tuple[Check, ...] = (
+    _check_horizons,
+    _check_betas,
     _check_val_sampler,
     eval_config_problems,
     *finetune.CHECKS,
@@ -213,18 +253,98 @@ def _check_task(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
     ]
 
 
-def validate_config(cfg: DictConfig, command: str = "train") -> None:
-    """Raise :class:`ConfigValidationError` listing every field of ``cfg`` that cannot work for
-    ``command`` (see :data:`COMMAND_SCOPES`)."""
+def _check_unet(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
+    """The UNet's fields against what :class:`~l1flow_rl.networks.unet1d.ConditionalUnet1D` builds:
+    GroupNorm groups that divide every level's channels, an odd kernel (same-length convolutions), a
+    timestep embedding the sampler can read, a chunk the levels can halve."""
+    p = _plain(cfg.get("policy"))
+    if not isinstance(p, dict) or "down_dims" not in p:
+        return []
+    problems = []
+    dims, groups = list(p["down_dims"]), p.get("n_groups")
+    if not dims or any(not isinstance(d, int) or d < 1 for d in dims):
+        problems.append(f"policy.down_dims={dims}: expected one or more channel counts, each >= 1")
+    elif not isinstance(groups, int) or groups < 1:
+        problems.append(f"policy.n_groups={groups!r}: expected >= 1 (GroupNorm groups)")
+    elif any(d % groups for d in dims):
+        problems.append(
+            f"policy.n_groups={groups}: expected a divisor of every width of policy.down_dims={dims} "
+            "(GroupNorm groups split each level's channels)"
+        )
+    elif isinstance(p.get("pred_horizon"), int) and p["pred_horizon"] % 2 ** (len(dims) - 1):
+        problems.append(
+            f"policy.pred_horizon={p['pred_horizon']}: expected a multiple of {2 ** (len(dims) - 1)} "
+            f"(the UNet halves the chunk {len(dims) - 1} times for policy.down_dims={dims})"
+        )
+    kernel = p.get("kernel_size")
+    if not isinstance(kernel, int) or kernel < 1 or kernel % 2 == 0:
+        problems.append(
+            f"policy.kernel_size={kernel!r}: expected an odd number >= 1 (same-length convolutions)"
+        )
+    scale = p.get("timestep_scale", 1.0)
+    if not isinstance(scale, (int, float)) or not scale > 0:
+        problems.append(f"policy.timestep_scale={scale!r}: expected > 0")
+    embed = p.get("timestep_embed_dim")
+    needs_embed = "policy" in scopes and p.get("sampler") in sampler_names() and _uses_timestep(p)
+    if not isinstance(embed, int) or embed < 0 or (needs_embed and (embed < 4 or embed % 2)):
+        problems.append(
+            f"policy.timestep_embed_dim={embed!r}: expected an even number >= 4 (sin/cos pairs)"
+            + (f" for policy.sampler={p.get('sampler')!r}, which reads the flow time" if needs_embed else "")
+        )
+    return problems
+
+
+def _uses_timestep(p: dict) -> bool:
+    try:
+        return bool(make_sampler(p["sampler"], **(p.get("sampler_kwargs") or {})).uses_timestep)
+    except (TypeError, ValueError):  # bad arguments: reported by check_policy
+        return False
+
+
+def _check_encoder(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
+    """``encoder.group_size`` divides the image trunk's channels (GroupNorm), where the trunk is
+    built: ``resnet18_gn`` named, or ``auto`` on a task that observes images."""
+    size, name = _select(cfg, "encoder.group_size"), _select(cfg, "encoder.name")
+    if (
+        "network" not in scopes
+        or not isinstance(size, int)
+        or size < 1
+        or name not in ("resnet18_gn", "auto")
+    ):
+        return []
+    if name == "auto" and _select(cfg, "task.obs_mode") == "state":
+        return []
+    if all(w % size == 0 for w in WIDTHS):
+        return []
+    return [
+        f"encoder.group_size={size}: expected a divisor of the image trunk's channels {list(WIDTHS)} "
+        "(channels per GroupNorm group), e.g. 16"
+    ]
+
+
+def config_problems(cfg: DictConfig, command: str = "train", paths: bool = False) -> list[str]:
+    """Every problem :func:`validate_config` would report, one line each (``paths``: the path
+    fields too, which looks at the file system)."""
     scopes = COMMAND_SCOPES.get(command, frozenset({"policy", "network"}))
-    problems = _check_choices(cfg)
+    problems = range_problems(cfg, AppConfig)
+    problems += _check_choices(cfg)
     if "policy" in scopes and "policy" in cfg:
         problems += check_policy(cfg.policy)
+    problems += _check_unet(cfg, scopes) + _check_encoder(cfg, scopes)
     if "task" in cfg:
         problems += _check_task(cfg, scopes)
     for check in (*BUILTIN_CHECKS, *_CHECKS):
         problems += check(cfg, command)
+    if paths:
+        problems += path_problems(cfg, AppConfig, command)
+    return list(dict.fromkeys(problems))  # a rule that two checks share is said once
+
+
+def validate_config(cfg: DictConfig, command: str = "train", paths: bool = False) -> None:
+    """Raise :class:`ConfigValidationError` listing every field of ``cfg`` that cannot work for
+    ``command`` (see :data:`COMMAND_SCOPES`): each value outside its declared range
+    (:mod:`l1flow_rl.config.ranges`), each unknown choice, each broken relation between fields, and
+    with ``paths`` each path field that names nothing usable (:mod:`l1flow_rl.config.path_fields`)."""
+    problems = config_problems(cfg, command, paths)
     if problems:
-        raise ConfigValidationError(
-            f"{len(problems)} config value(s) cannot work:\n  " + "\n  ".join(problems)
-        )
+        raise ConfigValidationError(problems)
