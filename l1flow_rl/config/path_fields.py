@@ -66,7 +66,7 @@ class PathRule:
             EXISTING: "an existing file or directory",
             DATASET: "an existing dataset (ManiSkill .h5, robomimic .hdf5, .zarr, LeRobot folder)",
         }[self.kind]
-        if self.commands is not None:
+        if self.commands:
             text += f"; read by {', '.join(sorted(self.commands))}"
         if self.required:
             text += f"; required by {', '.join(sorted(self.required))}"
