@@ -12,10 +12,10 @@ import pytest
 from omegaconf import OmegaConf
 
 from l1flow_rl.commands.cli import COMMANDS, main
+from l1flow_rl.commands.field_reference import BEGIN, END, PAGE, composed_configs, reference_markdown
 from l1flow_rl.config.app import AppConfig
 from l1flow_rl.config.path_fields import DATASET, EXISTING, WRITABLE_DIR, declared_paths
 from l1flow_rl.config.ranges import field_range, is_numeric, walk_fields
-from l1flow_rl.config.reference import BEGIN, END, PAGE, composed_configs, reference_markdown
 from l1flow_rl.config.validate import config_problems
 
 #: numeric fields whose ranges are declared elsewhere on another branch, each with why; an entry
@@ -259,4 +259,4 @@ def test_the_field_reference_in_docs_cli_is_current():
     text = PAGE.read_text()
     assert BEGIN in text and END in text
     current = text.split(BEGIN, 1)[1].split(END, 1)[0].strip()
-    assert current == reference_markdown().strip(), "run: python -m l1flow_rl.config.reference"
+    assert current == reference_markdown().strip(), "run: python -m l1flow_rl.commands.field_reference"

@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import tempfile
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -75,8 +75,12 @@ class PathRule:
     def applies_to(self, command: str) -> bool:
         return self.commands is None or command in self.commands or command in self.required
 
-    def problem(self, value: Any, command: str) -> str | None:
-        """Why ``value`` cannot serve ``command``, or None."""
+    def problem(
+        self, value: Any, command: str, dataset_problem: Callable[[Path], str | None] | None = None
+    ) -> str | None:
+        """Why ``value`` cannot serve ``command``, or None. ``dataset_problem(path)`` tells a dataset's
+        format (the data layer's detection, which the validator passes in); without it a dataset
+        only has to exist."""
         if not self.applies_to(command):
             return None
         if value is None or value == "":
@@ -84,9 +88,9 @@ class PathRule:
         path = Path(str(value)).expanduser()
         if self.kind == WRITABLE_DIR:
             return _unwritable(path)
-        if self.kind == EXISTING:
-            return None if path.exists() else "no such file or directory"
-        return _not_a_dataset(path)
+        if not path.exists():
+            return "no such file or directory"
+        return dataset_problem(path) if self.kind == DATASET and dataset_problem is not None else None
 
 
 def path_field(
@@ -121,12 +125,6 @@ def _unwritable(path: Path) -> str | None:
     return None
 
 
-def _not_a_dataset(path: Path) -> str | None:
-    from l1flow_rl.data.loading import dataset_problem  # the data layer's own format detection
-
-    return dataset_problem(path)
-
-
 def declared_paths(schema: type, prefix: str = "") -> Iterator[tuple[str, PathRule]]:
     """Every path field of ``schema`` (nested dataclasses walked) as ``(dotted key, its PathRule)``."""
     hints = _resolved_hints(schema)
@@ -139,15 +137,20 @@ def declared_paths(schema: type, prefix: str = "") -> Iterator[tuple[str, PathRu
             yield key, f.metadata[PATH_KEY]
 
 
-def path_problems(cfg: DictConfig, schema: type, command: str) -> list[str]:
-    """One line per path field of ``cfg`` that cannot serve ``command``: ``key=value: expected <what>
-    (<why not>)``. Fields absent from ``cfg`` are skipped."""
+def path_problems(
+    cfg: DictConfig,
+    schema: type,
+    command: str,
+    dataset_problem: Callable[[Path], str | None] | None = None,
+) -> list[str]:
+    """One line per path field of ``cfg`` that cannot serve ``command``: ``key=value: <why not>;
+    expected <what>`` (``dataset_problem``: see :meth:`PathRule.problem`)."""
     problems = []
     for key, rule in declared_paths(schema):
         node: Any = cfg
         for part in key.split("."):
             node = node.get(part) if isinstance(node, (DictConfig, dict)) else None
-        why = rule.problem(node, command)
+        why = rule.problem(node, command, dataset_problem)
         if why is not None:
             problems.append(f"{key}={node!r}: {why}; expected {rule.describe()}")
     return problems

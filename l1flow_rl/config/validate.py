@@ -40,6 +40,7 @@ from l1flow_rl.config.path_fields import path_problems
 from l1flow_rl.config.ranges import range_problems
 from l1flow_rl.config.task import CONTROL_KINDS, TaskConfig
 from l1flow_rl.config.train import LOGGERS
+from l1flow_rl.data.loading import dataset_problem
 from l1flow_rl.envs.registry import registered_simulators
 from l1flow_rl.evaluation.plan import eval_config_problems
 from l1flow_rl.evaluation.protocols import protocol_names
@@ -336,7 +337,7 @@ def config_problems(cfg: DictConfig, command: str = "train", paths: bool = False
     for check in (*BUILTIN_CHECKS, *_CHECKS):
         problems += check(cfg, command)
     if paths:
-        problems += path_problems(cfg, AppConfig, command)
+        problems += path_problems(cfg, AppConfig, command, dataset_problem)
     return list(dict.fromkeys(problems))  # a rule that two checks share is said once
 
 

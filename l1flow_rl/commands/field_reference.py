@@ -2,8 +2,8 @@
 from the declarations beside the fields (:mod:`l1flow_rl.config.ranges`,
 :mod:`l1flow_rl.config.path_fields`), so the page cannot drift from the check.
 
-    python -m l1flow_rl.config.reference           # rewrite the section between the markers
-    python -m l1flow_rl.config.reference --check   # exit 1 when the page is out of date
+    python -m l1flow_rl.commands.field_reference           # rewrite the section between the markers
+    python -m l1flow_rl.commands.field_reference --check   # exit 1 when the page is out of date
 
 Every composed fine-tuning preset is walked, so a settings block whose schema the chosen algorithm
 picks (:func:`~l1flow_rl.config.ranges.register_subschema`) is listed too.
@@ -20,6 +20,7 @@ from typing import Any
 
 from omegaconf import DictConfig
 
+from l1flow_rl.commands.cli import COMMANDS, compose_config
 from l1flow_rl.config.app import AppConfig
 from l1flow_rl.config.path_fields import PATH_KEY
 from l1flow_rl.config.paths import CONFIG_DIR
@@ -27,16 +28,14 @@ from l1flow_rl.config.ranges import field_range, is_numeric, walk_fields
 
 __all__ = ["BEGIN", "END", "composed_configs", "field_rows", "reference_markdown", "update_page"]
 
-BEGIN = "<!-- fields:begin (python -m l1flow_rl.config.reference) -->"
+BEGIN = "<!-- fields:begin (python -m l1flow_rl.commands.field_reference) -->"
 END = "<!-- fields:end -->"
-PAGE = Path(__file__).resolve().parents[2] / "docs" / "cli.md"
+PAGE = Path(__file__).resolve().parents[2] / "docs" / "cli.md"  # a source checkout's
 
 
 def composed_configs() -> Iterator[tuple[str, DictConfig]]:
     """``(command, composed config)`` for every command, and for ``finetune`` every preset of
     ``configs/finetune/`` (each algorithm's own block)."""
-    from l1flow_rl.commands.cli import COMMANDS, compose_config
-
     for command in COMMANDS:
         if command != "finetune":
             yield command, compose_config([], command=command)
@@ -44,8 +43,6 @@ def composed_configs() -> Iterator[tuple[str, DictConfig]]:
 
 
 def _finetune_presets() -> Iterator[tuple[str, DictConfig]]:
-    from l1flow_rl.commands.cli import compose_config
-
     for preset in sorted(p.stem for p in (CONFIG_DIR / "finetune").glob("*.yaml")):
         yield "finetune", compose_config([f"finetune={preset}"], command="finetune")
 
@@ -117,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     new = update_page(text, reference_markdown())
     if args.check:
         if new != text:
-            print(f"{PAGE} is out of date: python -m l1flow_rl.config.reference", file=sys.stderr)
+            print(f"{PAGE} is out of date: python -m l1flow_rl.commands.field_reference", file=sys.stderr)
             return 1
         return 0
     PAGE.write_text(new)
