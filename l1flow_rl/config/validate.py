@@ -272,7 +272,11 @@ def _check_unet(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
             f"policy.n_groups={groups}: expected a divisor of every width of policy.down_dims={dims} "
             "(GroupNorm groups split each level's channels)"
         )
-    elif isinstance(p.get("pred_horizon"), int) and p["pred_horizon"] % 2 ** (len(dims) - 1):
+    elif (
+        isinstance(p.get("pred_horizon"), int)
+        and p["pred_horizon"] >= 1
+        and p["pred_horizon"] % 2 ** (len(dims) - 1)
+    ):
         problems.append(
             f"policy.pred_horizon={p['pred_horizon']}: expected a multiple of {2 ** (len(dims) - 1)} "
             f"(the UNet halves the chunk {len(dims) - 1} times for policy.down_dims={dims})"
