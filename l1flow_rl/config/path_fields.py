@@ -60,7 +60,7 @@ class PathRule:
     required: frozenset[str] = frozenset()
 
     def describe(self) -> str:
-        """The rule in words, e.g. ``a writable directory (train, demos)``."""
+        """The rule in words, e.g. ``a writable directory, existing or creatable; read by demos, train``."""
         text = {
             WRITABLE_DIR: "a writable directory, existing or creatable",
             EXISTING: "an existing file or directory",
