@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
+from typing import Any
 
 import torch
 from l1flow_rl.envs.registry import get_simulator
@@ -43,7 +44,7 @@ def make_env(
     ignore_terminations: bool = True,
     render: bool = True,
     camera: str | None = None,
-    **options,
+    **options: Any,
 ) -> TransformedEnv:
     """The TorchRL env of a task, batch size ``[num_envs]``, with observation history.
 
@@ -62,7 +63,7 @@ def make_env(
         ignore_terminations: ManiSkill's evaluation setting: run every episode to the time limit.
         render: allow ``render_frames()`` (videos); costs nothing measurable until a frame is asked for.
         camera: which camera feeds the image entry when the task has several.
-        options: the simulator's own options (``SimulatorSpec.options``; ManiSkill:
+        **options: the simulator's own options (``SimulatorSpec.options``; ManiSkill:
             ``reconfigure_each_episode``, ``cpu_backend``), then task config fields, e.g.
             ``max_episode_steps=50``. Anything else is refused, naming it, before an env is built;
             so are a missing simulator (with its install hint) and an obs_mode it lacks.

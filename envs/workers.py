@@ -156,8 +156,8 @@ def _kill_daemonic_workers_at_exit() -> None:
 
     At interpreter exit multiprocessing sends SIGTERM to the daemonic children still running (an env
     never closed, or one kept alive by a reference until then), then joins them. Simulator workers
-    ignore SIGTERM (:func:`signal_safe_factory`), so that join waited forever: measured, a finished
-    ``l1flow-rl train`` on PegInsertionSide hung at exit for 30 minutes after writing eval.json.
+    ignore SIGTERM (:func:`signal_safe_factory`), so that join waited forever (seen: a finished
+    ``l1flow-rl train`` hung at exit after writing eval.json).
     atexit runs handlers last-registered first, so this one kills them before multiprocessing's runs.
     """
 
@@ -172,7 +172,7 @@ def _kill_daemonic_workers_at_exit() -> None:
 
 def _make_signal_safe(make: Callable, *args, **kwargs):
     # TorchRL also calls the factory in the main process (for the env's specs): ignoring the
-    # signals there left a run deaf to Ctrl-C and to its stop signals (measured: a parallel PushT
+    # signals there left a run deaf to Ctrl-C and to its stop signals (seen: a parallel PushT
     # env turned the main process's SIGINT, SIGTERM and SIGUSR1 handlers into SIG_IGN)
     if multiprocessing.parent_process() is not None:
         ignore_stop_signals()
@@ -187,7 +187,7 @@ def signal_safe_factory(make: Callable) -> Callable:
     ``timeout``, SLURM, ``docker stop`` and Ctrl-C signal the whole process group. A worker (or the
     forkserver that forked it: multiprocessing then reports its live workers as exited with code
     255) killed by that signal leaves the main process mid-step, and its checkpoint-and-stop fails on
-    a dead worker (measured: a run stopped in validation crashed without its checkpoint; one stopped
+    a dead worker (seen: a run stopped in validation crashed without its checkpoint; one stopped
     while collecting saved it, then exited with a traceback from closing its workers). Ignoring them
     in the workers lets the main process checkpoint and close them itself; a worker whose main
     process is killed outright still exits when its pipe closes.

@@ -1,4 +1,4 @@
-"""benchmarks/bench_export_latency.py --quick runs and saves every path with its ratio and match."""
+"""benchmarks/speed/bench_export_latency.py --quick runs and saves every path with its ratio and match."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 @pytest.mark.slow  # 31 s on 2 busy cores, most of it the ONNX export
 def test_bench_export_latency_quick_writes_ratios_and_matches(tmp_path):
     pytest.importorskip("onnxruntime", reason="the ONNX path needs the export extra")
-    from benchmarks import bench_export_latency
+    from benchmarks.speed import bench_export_latency
 
     out = tmp_path / "export_latency.json"
     assert bench_export_latency.main(["--quick", "--network", "state", "--out", str(out)]) == 0
@@ -27,7 +27,7 @@ def test_bench_export_latency_quick_writes_ratios_and_matches(tmp_path):
 def test_the_saved_figures_render_one_row_per_path():
     from pathlib import Path
 
-    from benchmarks.export_report import render_export_latency
+    from benchmarks.report.speed import render_export_latency
 
     data = json.loads(
         (Path(__file__).parents[1] / "benchmarks" / "results" / "export_latency.json").read_text()

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from benchmarks import bench_latency
+from benchmarks.speed import bench_latency
 
 
 def test_latency_quick_mode_saves_every_method_with_its_nfe(tmp_path):
@@ -37,7 +37,7 @@ def test_latency_quick_mode_saves_every_method_with_its_nfe(tmp_path):
 
 
 def test_multimodal_quick_mode_reports_every_family_and_evaluation(tmp_path):
-    from benchmarks import bench_multimodal
+    from benchmarks.success import bench_multimodal
 
     out = tmp_path / "multimodal.json"
     assert bench_multimodal.main(["--quick", "--out", str(out), "--methods", "l1flow", "regression"]) == 0
@@ -76,7 +76,7 @@ def test_latency_quick_mode_times_the_image_network_under_every_sampler(tmp_path
 
 
 def test_ablations_table_pairs_each_variant_with_the_default_on_the_same_seed():
-    from benchmarks import report
+    from benchmarks.report import success as report
 
     def block(kind, rates):
         per_seed = [{"success_once": r, "episodes": 50} for r in rates]
@@ -101,7 +101,7 @@ def test_ablations_table_pairs_each_variant_with_the_default_on_the_same_seed():
 
 
 def test_success_table_budget_leaves_out_runs_timed_only_from_a_resume():
-    from benchmarks import report
+    from benchmarks.report import success as report
 
     seed = {"success_once": 0.5, "episodes": 50, "steps": 2500, "curve": [[2500, 0.5]]}
     tree = {"cpu_seconds_scope": "process tree"}
@@ -112,22 +112,26 @@ def test_success_table_budget_leaves_out_runs_timed_only_from_a_resume():
     ]
     stats = {"mean": 0.5, "std": 0.0, "min": 0.5, "max": 0.5, "n": 3}
     d = {"tasks": {"pusht": {"flow": {"success_once": stats, "per_seed": per_seed}}}}
-    text = report.render_success(d)
-    row = next(line for line in text.splitlines() if line.startswith("| pusht | flow |"))
+    text = report.render_success([("success_pusht.json", d)])
+    row = next(
+        line for line in text.splitlines() if line.startswith("| `success_pusht.json` | pusht | flow |")
+    )
     assert row.rstrip(" |").endswith("| 1,200"), row  # (1000 + 1400) / 2, the partial run left out
     assert "cover only the last invocation): pusht flow: 1 run(s)." in text
     assert "†" not in text
 
     # Runs recorded before the CPU seconds covered simulator workers: the figure is marked as a floor.
     per_seed[0].pop("cpu_seconds_scope")
-    text = report.render_success(d)
-    row = next(line for line in text.splitlines() if line.startswith("| pusht | flow |"))
+    text = report.render_success([("success_pusht.json", d)])
+    row = next(
+        line for line in text.splitlines() if line.startswith("| `success_pusht.json` | pusht | flow |")
+    )
     assert row.rstrip(" |").endswith("| 1,200 †"), row
     assert "†: the runs' own processes only" in text
 
 
 def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradictions(tmp_path):
-    from benchmarks.claims import claims_table
+    from benchmarks.report.claims import claims_table
 
     assert claims_table(tmp_path) is None  # nothing measured, no table
 
@@ -189,7 +193,7 @@ def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradic
 
 
 def test_success_overview_puts_every_compared_task_in_one_table_and_figure(tmp_path):
-    from benchmarks.success_overview import overview_figure, overview_table
+    from benchmarks.report.success_overview import overview_figure, overview_table
 
     assert overview_table(tmp_path) is None and not overview_figure(tmp_path, tmp_path / "o.png")
 
@@ -239,7 +243,7 @@ def test_success_overview_puts_every_compared_task_in_one_table_and_figure(tmp_p
 @pytest.mark.slow
 @pytest.mark.maniskill
 def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
-    from benchmarks import bench_success
+    from benchmarks.success import bench_success
 
     # two runs side by side (--jobs 2), after the shared demonstrations are made once
     argv = [
@@ -255,6 +259,8 @@ def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
         "ddim16",
         "--root",
         str(tmp_path),
+        "--plot",
+        str(tmp_path / "success_pushcube_quick.png"),
     ]
     assert bench_success.main(argv) == 0
     figures = json.loads((tmp_path / "success_pushcube_quick.json").read_text())
@@ -266,7 +272,7 @@ def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
     assert budget["seconds_since_step"] == 0  # the seconds cover the whole run
     assert budget["cpu_seconds_scope"] == "process tree"  # simulator workers included
     # each run records the machine as it ran: the sweep's share of the cores as its torch threads
-    from benchmarks.sweep import _threads
+    from benchmarks.lib.sweep import _threads
 
     assert budget["machine"]["torch_threads"] == _threads(2) and budget["machine"]["device"] == "cpu"
     assert block["ddpm"]["per_seed"][0]["nfe_per_chunk"] == 100.0  # tested under its own sampler
@@ -295,7 +301,7 @@ def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
 
 
 def test_success_collect_only_lists_what_is_missing_and_trains_nothing(tmp_path, capsys):
-    from benchmarks import bench_success
+    from benchmarks.success import bench_success
 
     argv = [
         "--quick",
@@ -319,7 +325,7 @@ def test_success_collect_only_lists_what_is_missing_and_trains_nothing(tmp_path,
 @pytest.mark.slow
 @pytest.mark.maniskill
 def test_ablations_quick_mode_covers_every_variant(tmp_path):
-    from benchmarks import bench_ablations
+    from benchmarks.success import bench_ablations
 
     # the five loss variants two at a time, after the demonstrations are made once
     assert bench_ablations.main(["--quick", "--seeds", "0", "--jobs", "2", "--root", str(tmp_path)]) == 0
@@ -334,7 +340,7 @@ def test_ablations_quick_mode_covers_every_variant(tmp_path):
 def test_train_throughput_quick_mode_times_every_arm_and_cuda_latency_refuses_without_cuda(tmp_path, capsys):
     import torch
 
-    from benchmarks import bench_latency_cuda, bench_train_throughput
+    from benchmarks.speed import bench_latency_cuda, bench_train_throughput
 
     out = tmp_path / "train_throughput.json"
     argv = ["--quick", "--device", "cpu", "--compile", "off", "--out", str(out)]
@@ -361,7 +367,7 @@ def test_train_throughput_quick_mode_times_every_arm_and_cuda_latency_refuses_wi
 def test_a_finished_run_of_another_setting_is_refused_not_read_back(tmp_path):
     from omegaconf import OmegaConf
 
-    from benchmarks.sweep import Run, train
+    from benchmarks.lib.sweep import Run, train
 
     run_dir = tmp_path / "maniskill_stackcube" / "l1flow" / "seed0"
     run_dir.mkdir(parents=True)
@@ -385,7 +391,7 @@ def test_a_finished_run_of_another_setting_is_refused_not_read_back(tmp_path):
 
 
 def test_sampler_quick_mode_measures_sampling_against_the_training_step(tmp_path):
-    from benchmarks import bench_sampler
+    from benchmarks.speed import bench_sampler
 
     out = tmp_path / "sampler.json"
     assert bench_sampler.main(["--quick", "--out", str(out), "--device", "cpu"]) == 0
@@ -408,7 +414,7 @@ def test_sampler_quick_mode_measures_sampling_against_the_training_step(tmp_path
 @pytest.mark.maniskill
 def test_env_throughput_quick_mode_times_adapters_against_raw_maniskill(tmp_path):
     pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
-    from benchmarks import bench_env_throughput
+    from benchmarks.speed import bench_env_throughput
 
     out = tmp_path / "env.json"
     assert bench_env_throughput.main(["--quick", "--out", str(out)]) == 0
@@ -432,7 +438,7 @@ def test_policy_in_the_loop_plans_one_chunk_per_8_steps_on_real_maniskill():
     import torch
     from torch.nn.modules.module import register_module_forward_hook
 
-    from benchmarks.bench_env_throughput import policy_in_loop
+    from benchmarks.speed.bench_env_throughput import policy_in_loop
     from l1flow_rl import L1FlowActor
     from l1flow_rl.config import load_task_config
 
@@ -454,7 +460,7 @@ def test_policy_in_the_loop_plans_one_chunk_per_8_steps_on_real_maniskill():
 @pytest.mark.slow  # ~70 s: a benchmark script, run on purpose (test_train_job covers the train command)
 def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
     pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-rl[maniskill]'")
-    from benchmarks import bench_main_job
+    from benchmarks.success import bench_main_job
 
     out = tmp_path / "main_job.json"
     argv = ["--quick", "--seeds", "0", "1", "--out", str(out), "--workdir", str(tmp_path / "work")]
@@ -472,7 +478,7 @@ def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
     # the runs' seeds reach the CLI: each run directory records its own
     for seed in (0, 1):
         assert f"seed: {seed}\n" in (tmp_path / "work" / f"seed{seed}" / "run" / "config.yaml").read_text()
-    from benchmarks.report import render_main_job
+    from benchmarks.report.success import render_main_job
 
     table = render_main_job(figures)
     assert table.count("\n| ") == 2 and "the job does not meet its targets" in table  # one row per run
@@ -486,23 +492,10 @@ def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
     assert bench_main_job.main(argv) == 2
     with pytest.raises(SystemExit):  # the seeds are the script's: a seed= override is refused
         bench_main_job.main(["--quick", "--out", str(again), "seed=3"])
-    # the same run recorded as a results file by collect_runs; an unfinished run is refused
-    from benchmarks import collect_runs
-    from benchmarks.report import render_training_runs
-
-    run_dir = tmp_path / "work" / "seed0" / "run"
-    assert collect_runs.main(["--name", "t", "--results", str(tmp_path), str(tmp_path / "nothing")]) == 2
-    assert collect_runs.main(["--name", "t", "--results", str(tmp_path), str(run_dir)]) == 0
-    (record,) = json.loads((tmp_path / "t.json").read_text())["runs"]
-    assert (record["task"], record["policy"], record["steps"]) == ("maniskill_pushcube", "l1flow", 4)
-    assert record["success_once"] == figures["runs"][0]["success_once"] and record["episodes"] == 2
-    assert "| maniskill_pushcube | l1flow | 2 | 4 |" in render_training_runs(
-        json.loads((tmp_path / "t.json").read_text())
-    )
 
 
 def test_report_does_not_pass_the_collectors_threads_and_load_off_as_the_runs():
-    from benchmarks.report import _machine
+    from benchmarks.report.tables import machine_text as _machine
 
     machine = {"cpu": "Some CPU", "cores": 2, "torch_threads": 2, "load_average_1min": 0.11}
 
@@ -526,7 +519,7 @@ def test_open_loop_error_reads_each_runs_checkpoint_on_the_same_windows(tmp_path
     from doubles.point_mass import POINT_MASS_TASK  # noqa: F401  (registers the double)
     from test_envs_point_mass import TASK_OVERRIDES
 
-    from benchmarks import bench_open_loop
+    from benchmarks.success import bench_open_loop
     from l1flow_rl.commands.cli import main
 
     root = tmp_path / "grid"
@@ -535,7 +528,7 @@ def test_open_loop_error_reads_each_runs_checkpoint_on_the_same_windows(tmp_path
         args = [
             *TASK_OVERRIDES,
             f"policy={method}",
-            "policy.down_dims=[16,32]",
+            "network.down_dims=[16,32]",
             "demos.num=4",
             "train.steps=40",
             "train.batch_size=16",

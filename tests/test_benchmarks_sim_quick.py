@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from benchmarks import report
+from benchmarks.report import speed, success
 from l1flow_rl.config import load_task_config
 
 PUSHT_HINT = "needs gym-pusht: pip install 'l1flow-rl[pusht]'"
@@ -29,7 +29,7 @@ def _assert_machine(machine: dict) -> None:
 @pytest.mark.slow  # ~20 s: a benchmark script, run on purpose
 def test_pusht_env_quick_mode_rates_every_setting_of_both_observations_against_raw(tmp_path):
     pytest.importorskip("gym_pusht", reason=PUSHT_HINT)
-    from benchmarks import bench_pusht_env
+    from benchmarks.speed import bench_pusht_env
 
     out = tmp_path / "pusht_env.json"
     assert bench_pusht_env.main(["--quick", "--out", str(out)]) == 0
@@ -44,14 +44,14 @@ def test_pusht_env_quick_mode_rates_every_setting_of_both_observations_against_r
         assert all(rate > 0 for rate in rates.values())
         raw = rates["raw_gym_pusht"]
         assert ratios == pytest.approx({name: rate / raw for name, rate in rates.items()})
-    table = report.render_sim_throughput(figures)
+    table = speed.render_sim_throughput(figures)
     assert sum(line.startswith(("| pusht |", "| pusht_image |")) for line in table.splitlines()) == 8
 
 
 @pytest.mark.pusht
 def test_pusht_expert_quick_mode_scores_each_seed_and_sums_up_the_sides(tmp_path):
     pytest.importorskip("gym_pusht", reason=PUSHT_HINT)
-    from benchmarks import bench_pusht_expert
+    from benchmarks.success import bench_pusht_expert
 
     out = tmp_path / "pusht_expert.json"
     assert bench_pusht_expert.main(["--quick", "--out", str(out)]) == 0
@@ -71,7 +71,7 @@ def test_pusht_expert_quick_mode_scores_each_seed_and_sums_up_the_sides(tmp_path
     assert figures["wall_seconds"] > 0
     assert sum(figures["side_share"].values()) == pytest.approx(1.0)
     assert all(v is None or 0.0 <= v <= 1.0 for v in figures["success_by_side"].values())
-    table = report.render_experts(figures)
+    table = success.render_experts(figures)
     assert f"| pusht | {seeds} |" in table and "Share of episodes per side of the block" in table
 
 
@@ -79,7 +79,7 @@ def test_pusht_expert_quick_mode_scores_each_seed_and_sums_up_the_sides(tmp_path
 @pytest.mark.slow  # ~30 s: a benchmark script, run on purpose
 def test_robosuite_experts_quick_mode_runs_every_task_for_its_seeds(tmp_path):
     pytest.importorskip("robosuite", reason="needs robosuite: pip install 'l1flow-rl[robosuite]'")
-    from benchmarks import bench_robosuite_experts
+    from benchmarks.success import bench_robosuite_experts
 
     out = tmp_path / "robosuite_experts.json"
     assert bench_robosuite_experts.main(["--quick", "--out", str(out)]) == 0
@@ -99,7 +99,7 @@ def test_robosuite_experts_quick_mode_runs_every_task_for_its_seeds(tmp_path):
             assert 0 < r["steps_per_success_mean"] <= r["steps_per_success_max"] <= task.max_episode_steps
         else:
             assert r["steps_per_success_mean"] is None and r["steps_per_success_max"] is None
-    table = report.render_experts(figures)
+    table = success.render_experts(figures)
     assert all(f"| {name} | {seeds} |" in table for name in ROBOSUITE_TASKS)
 
 
@@ -107,7 +107,7 @@ def test_robosuite_experts_quick_mode_runs_every_task_for_its_seeds(tmp_path):
 @pytest.mark.slow  # ~30 s: a benchmark script, run on purpose
 def test_robosuite_throughput_quick_mode_times_each_adapter_against_its_raw_baseline(tmp_path):
     pytest.importorskip("robosuite", reason="needs robosuite: pip install 'l1flow-rl[robosuite]'")
-    from benchmarks import bench_robosuite_throughput as bench
+    from benchmarks.speed import bench_robosuite_throughput as bench
 
     out = tmp_path / "robosuite_throughput_robosuite_lift.json"
     # 2 workers: make_env runs a single env in process, so only 2 or more reach the worker path
@@ -127,5 +127,5 @@ def test_robosuite_throughput_quick_mode_times_each_adapter_against_its_raw_base
             rate = r[f"{side}_steps_per_s"]
             # both rounded in the file (rates to 0.1, the ratio to 0.001)
             assert rate > 0 and r[f"{side}_over_raw"] == pytest.approx(rate / r["raw_steps_per_s"], rel=0.02)
-    table = report.render_sim_throughput(figures)
+    table = speed.render_sim_throughput(figures)
     assert all(f"| {name} |" in table for name in rows)

@@ -98,17 +98,25 @@ def test_config_mismatch_lists_every_difference():
         check_compatible(saved, asked, "runs/x/latest.pt")
     msg = str(info.value)
     assert "task.env_id: checkpoint has 'PushCube-v1', config asks for 'PickCube-v1'" in msg
-    assert "policy.down_dims" in msg
+    assert "network.down_dims" in msg  # a config from before the network group, read in today's layout
     assert "task.obs_mode" not in msg
 
 
 def test_timestep_scale_is_part_of_a_checkpoints_identity_and_defaults_to_raw_time():
     before = {"policy": {"down_dims": [64, 128, 256]}}  # a checkpoint from before the field
-    check_compatible(before, {"policy": {"down_dims": [64, 128, 256], "timestep_scale": 1.0}})
+    check_compatible(
+        before, {"network": {"name": "unet", "down_dims": [64, 128, 256], "timestep_scale": 1.0}}
+    )
     with pytest.raises(
-        CheckpointMismatchError, match=r"policy\.timestep_scale: checkpoint has 1\.0, config asks for 1000"
+        CheckpointMismatchError, match=r"network\.timestep_scale: checkpoint has 1\.0, config asks for 1000"
     ):
-        check_compatible(before, {"policy": {"down_dims": [64, 128, 256], "timestep_scale": 1000}})
+        check_compatible(
+            before, {"network": {"name": "unet", "down_dims": [64, 128, 256], "timestep_scale": 1000}}
+        )
+    with pytest.raises(
+        CheckpointMismatchError, match=r"network\.name: checkpoint has 'unet', config asks for 'mlp'"
+    ):
+        check_compatible(before, {"network": {"name": "mlp", "hidden_dims": [64, 64]}})
 
 
 def test_loading_weights_into_another_network_says_what_differs():
@@ -149,7 +157,8 @@ def _train_config(**changes):
         ("policy.loss", "regression"),  # the loss and its options
         ("policy.loss_kwargs.loss_type", "mse"),
         ("policy.sampler_kwargs.t_first", 0.25),
-        ("policy.down_dims", [8, 16]),  # the network
+        ("network.down_dims", [8, 16]),  # the network
+        ("network.name", "mlp"),
     ],
 )
 def test_resume_refuses_a_changed_dataset_schedule_or_loss_naming_the_field(field, value):

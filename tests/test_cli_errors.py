@@ -97,7 +97,8 @@ def test_a_truncated_checkpoint_to_resume_is_one_line_and_debug_shows_the_traceb
     [
         ("train.stepz=3", "train.stepz"),
         ("task=no_such_task", "task/no_such_task"),
-        ("policy.down_dims=12", "policy.down_dims"),
+        ("network.down_dims=12", "network.down_dims"),
+        ("policy.down_dims=[32,64,128]", "moved to network.down_dims"),
     ],
 )
 def test_a_bad_override_is_one_line_naming_the_key(override, named, capsys):

@@ -63,7 +63,8 @@ def test_every_policy_config_composes(policy):
         ("train.stepz=3", "stepz"),
         ("train.steps=abc", "train.steps"),
         ("task=no_such_task", "task/no_such_task"),
-        ("policy.down_dims=12", "policy.down_dims"),
+        ("network.down_dims=12", "network.down_dims"),
+        ("policy.down_dims=[32,64,128]", "moved to network.down_dims"),
         ("eval.episodes=[1]", "eval.episodes"),
     ],
 )
@@ -115,7 +116,7 @@ def test_task_configs_are_valid_and_fit_their_demos():
     ("override", "message"),
     [
         ("policy.sampler=rk4", "policy.sampler='rk4': expected one of ['ddim', 'ddpm', 'direct'"),
-        ("policy.loss=huber", "policy.loss='huber': expected one of ['diffusion', 'flow_matching', 'l1flow'"),
+        ("policy.loss=huber", "policy.loss='huber': expected one of ['consistency', 'diffusion', 'edm'"),
         ("policy.normalizer=minmax", "policy.normalizer='minmax': expected one of ['gaussian', 'identity'"),
         ("policy.obs_normalizer=x", "policy.obs_normalizer='x': expected one of"),
         ("train.logger=mlflow", "train.logger='mlflow': expected one of ['csv', 'tensorboard', 'wandb']"),
@@ -260,7 +261,8 @@ def test_command_help_lists_config_groups_and_their_options(capsys):
     assert main(["train", "--help"]) == 0
     out = capsys.readouterr().out
     lines = {line.split()[0]: line for line in out.splitlines() if line.startswith("  ") and line.split()}
-    assert "ddim, ddpm, flow, l1flow, regression" in lines["policy"] and "(now: l1flow)" in lines["policy"]
+    assert "ddim, ddpm, edm, flow, l1flow, onedp_d, onedp_s, regression" in lines["policy"]
+    assert "(now: l1flow)" in lines["policy"]
     assert lines["task"].startswith("  task     maniskill_")  # long lists wrap onto indented lines
     assert "maniskill_pushcube," in out and "(now: maniskill_pushcube)" in out
     assert "cpu" in lines["train"] and "paper" in lines["train"]

@@ -22,13 +22,6 @@ from l1flow_rl.config.validate import config_problems
 #: that no longer names an undeclared numeric field fails test_every_numeric_field_declares_a_range,
 #: so it is removed once they are declared.
 PENDING = {
-    # the UNet's fields move to the network config, which declares them; until then
-    # l1flow_rl.config.validate._check_unet refuses their bad values at compose time
-    "policy.down_dims": "network config",
-    "policy.timestep_embed_dim": "network config",
-    "policy.kernel_size": "network config",
-    "policy.n_groups": "network config",
-    "policy.timestep_scale": "network config",
     # each fine-tuning algorithm's settings move beside the algorithm, which declares their ranges
     "finetune.qc.": "algorithm settings",
     "finetune.fql.": "algorithm settings",
@@ -50,7 +43,14 @@ def composed():
 def _numeric_fields(cfg):
     for key, f, hint, value in walk_fields(cfg, AppConfig):
         if is_numeric(hint):
-            yield key, field_range(f), value, int in (hint, *typing.get_args(hint))
+            yield key, field_range(f), value, _holds(hint)
+
+
+def _holds(hint) -> tuple[bool, bool]:
+    """(whether the field holds a list, whether its numbers are integers), e.g. ``list[int] | None``."""
+    parts = [hint, *typing.get_args(hint)]
+    parts += [a for p in parts for a in typing.get_args(p)]
+    return any(typing.get_origin(p) in (list, tuple) for p in parts), int in parts
 
 
 def test_every_numeric_field_declares_a_range(composed):
@@ -67,12 +67,13 @@ def test_every_numeric_field_declares_a_range(composed):
     assert set(PENDING) == seen_pending, f"declared now, drop from PENDING: {set(PENDING) - seen_pending}"
 
 
-def _outside(rng, value, integer):
+def _outside(rng, value, holds):
     """Values outside the range, shaped as the field holds them (a list field: its first element
     made bad, the length kept)."""
+    listed, integer = holds
     for bad in rng.outside():
-        if isinstance(value, (list, tuple)) or OmegaConf.is_list(value):
-            items = list(value) or [0]
+        if listed:
+            items = list(value or []) or [0]
             yield [int(bad) if integer else bad, *items[1:]]
         else:
             yield int(bad) if integer else float(bad)
@@ -81,14 +82,14 @@ def _outside(rng, value, integer):
 def test_each_value_outside_its_range_is_refused_naming_the_key(composed):
     swept, seen = 0, set()
     for command, cfg in composed:
-        for key, rng, value, integer in list(_numeric_fields(cfg)):
+        for key, rng, value, holds in list(_numeric_fields(cfg)):
             # a fine-tuning preset differs from another in its algorithm's block only
             if rng is None or ((command, key) in seen and not key.startswith("finetune.")):
                 continue
             seen.add((command, key))
             assert rng.outside(), f"{key}: a range with no bound ({rng})"
             original = OmegaConf.to_container(value) if OmegaConf.is_config(value) else value
-            for bad in _outside(rng, value, integer):
+            for bad in _outside(rng, value, holds):
                 OmegaConf.update(cfg, key, bad, merge=False)
                 start = time.perf_counter()
                 try:
@@ -110,9 +111,9 @@ def _bad_overrides(cfg, tmp_path):
     afile = tmp_path / "a_file"
     afile.write_text("not a directory, not a dataset")
     out = {}
-    for key, rng, value, integer in _numeric_fields(cfg):
+    for key, rng, value, holds in _numeric_fields(cfg):
         if rng is not None:
-            bad = next(_outside(rng, value, integer))
+            bad = next(_outside(rng, value, holds))
             out[key] = f"{key}={bad}"
     for key, rule in declared_paths(AppConfig):
         path = {WRITABLE_DIR: afile / "sub", EXISTING: tmp_path / "missing", DATASET: afile}[rule.kind]
@@ -162,16 +163,16 @@ def test_every_bad_value_at_once_is_one_line_each_exit_2_nothing_written(
         ("train", "run_dir=/proc/nope", "run_dir='/proc/nope': cannot create or write in '/proc'"),
         ("demos", "data_dir=/proc/nope", "data_dir='/proc/nope': cannot create"),
         ("train", "policy.pred_horizon=4", "policy.pred_horizon=4: expected >= policy.obs_horizon - 1 + "),
-        ("train", "policy.n_groups=0", "policy.n_groups=0: expected >= 1"),
-        ("train", "policy.n_groups=3", "policy.n_groups=3: expected a divisor of every width"),
+        ("train", "network.n_groups=0", "network.n_groups=0: expected >= 1"),
+        ("train", "network.n_groups=3", "network.down_dims=[64, 128, 256]: every width must be divisible"),
         (
             "train",
-            "policy.down_dims=[32,64] policy.pred_horizon=15",
-            "policy.pred_horizon=15: expected a multiple",
+            "network.down_dims=[32,64] policy.pred_horizon=15",
+            "policy.pred_horizon=15: must be divisible by 2",
         ),
-        ("train", "policy.kernel_size=4", "policy.kernel_size=4: expected an odd number"),
-        ("train", "policy.timestep_scale=0", "policy.timestep_scale=0.0: expected > 0"),
-        ("train", "policy.timestep_embed_dim=5", "policy.timestep_embed_dim=5: expected an even number >= 4"),
+        ("train", "network.kernel_size=4", "network.kernel_size=4: expected an odd number"),
+        ("train", "network.timestep_scale=0", "network.timestep_scale=0.0: expected > 0"),
+        ("train", "network.timestep_embed_dim=5", "network.timestep_embed_dim=5: expected an even number"),
         (
             "train",
             "task=maniskill_pushcube_rgb encoder.group_size=24",

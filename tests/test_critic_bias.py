@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.bench_critic_bias import aggregate, latest_dump, main, mc_values, parse_configs
-from benchmarks.finetune_report import render_critic_bias
+from benchmarks.finetune.bench_critic_bias import aggregate, latest_dump, main, mc_values, parse_configs
+from benchmarks.report.finetune import render_critic_bias
 
 G = 0.99
 

@@ -145,7 +145,7 @@ def test_trainer_bf16_autocast_step_on_cuda(amp):
 
 
 def test_captured_latency_benchmark_runs_and_matches_eager(tmp_path):
-    from benchmarks import bench_latency_cuda
+    from benchmarks.speed import bench_latency_cuda
 
     out = tmp_path / "latency_cuda.json"
     assert bench_latency_cuda.main(["--quick", "--no-peers", "--out", str(out)]) == 0
@@ -210,7 +210,7 @@ def test_train_job_on_cuda_then_eval_of_its_checkpoint_on_cpu(tmp_path, env_devi
     common = [*TASK_OVERRIDES, "eval.num_envs=2"]
     train = [
         *common,
-        "policy.down_dims=[16,32]",
+        "network.down_dims=[16,32]",
         "demos.num=4",
         "train.steps=30",
         "train.batch_size=16",
@@ -235,9 +235,9 @@ def test_train_job_on_cuda_then_eval_of_its_checkpoint_on_cpu(tmp_path, env_devi
 
 @pytest.mark.maniskill
 def test_finetune_online_on_cuda_steps_envs_in_cpu_workers(tmp_path):
-    # measured on an H200 (benchmarks/run_records/device14): with the collector's env made on the GPU,
-    # the first online round failed ("indices should be either on cpu or on the same device"); the envs
-    # now step on the CPU and the collector moves each step to the actor's device and back
+    # seen on an H200: with the collector's env made on the GPU, the first online round failed
+    # ("indices should be either on cpu or on the same device"); the envs now step on the CPU and the
+    # collector moves each step to the actor's device and back
     pytest.importorskip("mani_skill")
     from test_finetune_job import BC, FT
 

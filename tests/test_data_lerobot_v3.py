@@ -285,7 +285,7 @@ def test_train_on_a_v3_folder_end_to_end(tmp_path):
         "train.warmup_steps=2",
         "eval.episodes=2",
         "eval.num_envs=1",
-        "policy.down_dims=[16,32]",
+        "network.down_dims=[16,32]",
         "device=cpu",
         f"data_dir={tmp_path / 'data'}",
         f"run_dir={run_dir}",

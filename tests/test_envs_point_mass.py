@@ -131,7 +131,7 @@ def test_l1flow_rl_train_on_the_double_writes_eval_json(tmp_path):
         "train.warmup_steps=2",
         "eval.episodes=2",
         "eval.num_envs=2",
-        "policy.down_dims=[16,32]",
+        "network.down_dims=[16,32]",
         "device=cpu",
         f"data_dir={data_dir}",
         f"run_dir={run_dir}",

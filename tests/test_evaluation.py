@@ -262,8 +262,8 @@ def test_cli_eval_writes_eval_json(tmp_path):
     from l1flow_rl.workspace.build import build_actor
     from l1flow_rl.workspace.checkpoint import save_checkpoint
 
-    cfg = compose_config(["policy.down_dims=[16,32]", "policy.timestep_embed_dim=16"])
-    actor = build_actor(cfg.policy, {"state": (35,)}, 4)
+    cfg = compose_config(["network.down_dims=[16,32]", "network.timestep_embed_dim=16"])
+    actor = build_actor(cfg.policy, {"state": (35,)}, 4, None, cfg.network)
     path = save_checkpoint(
         tmp_path / "ck.pt",
         {

@@ -25,8 +25,8 @@ BC = [
     "train.steps=20",
     "eval.episodes=1",
     "eval.num_envs=1",
-    "policy.down_dims=[16,32]",
-    "policy.timestep_embed_dim=16",
+    "network.down_dims=[16,32]",
+    "network.timestep_embed_dim=16",
     "task.max_episode_steps=30",
 ]
 
@@ -120,9 +120,9 @@ def test_the_run_records_and_trains_on_the_data_its_start_was_trained_on(finetun
 
 
 def test_the_critic_bias_bench_reloads_a_finished_run_with_its_data(finetuned):
-    from benchmarks.bench_critic_bias import load_run
+    from benchmarks.finetune.bench_critic_bias import load_run
 
-    # it reads the run's data through the fine-tune job's own rule (as bench_finetune_shock does), and
+    # it reads the run's data through the fine-tune job's own rule, and
     # broke when that rule's signature changed
     cfg, actor, episodes = load_run(finetuned)
     assert cfg.finetune.algorithm == "qc" and cfg.demos.num == 3
@@ -398,7 +398,7 @@ def test_the_continued_bc_control_trains_on_demonstrations_without_an_env_step(
     tmp_path, data_dir, bc_checkpoint
 ):
     """bench_finetune_online's continued-BC control: filtered BC's offline phase alone, validated."""
-    from benchmarks.bench_finetune_online import continued_bc_cmd
+    from benchmarks.finetune.bench_finetune_online import continued_bc_cmd
 
     run_dir = tmp_path / "continued_bc"
     args = type(
@@ -426,30 +426,6 @@ def test_the_continued_bc_control_trains_on_demonstrations_without_an_env_step(
     assert _differing(extended["model"], straight["model"]) == []
     assert _differing(extended["ema"], straight["ema"]) == []
     assert (run_dir / "eval_step4.json").is_file() and (run_dir / "eval.json").is_file()
-
-
-def test_the_shock_bench_reads_every_arm_from_the_same_start_and_adds_arms(tmp_path, bc_checkpoint):
-    """bench_finetune_shock: each optimiser start trains its own copy of the flow on the same batches;
-    the held loss is read on fixed batches, t and noise, so every arm starts at the same figure."""
-    from benchmarks import bench_finetune_shock as shock
-
-    out = tmp_path / "shock.json"
-    base = ["--checkpoint", str(bc_checkpoint), "--task", "maniskill_pushcube", "--out", str(out)]
-    small = ["--updates", "3", "--reads", "1", "3", "--held-batches", "2"]
-    assert shock.main([*base, *small, "--arms", "fresh_adam", "warmup"]) == 0
-    first = json.loads(out.read_text())
-    assert first["reads"] == [0, 1, 3] and list(first["arms"]) == ["fresh_adam", "warmup"]
-    starts = {arm: v["curve"][0]["held_loss"] for arm, v in first["arms"].items()}
-    assert starts["fresh_adam"] == starts["warmup"] > 0
-    # the warm-up's first update is at 1/200 of the LR: its flow moves less than fresh Adam's
-    moved = {arm: abs(v["curve"][1]["held_loss"] - starts[arm]) for arm, v in first["arms"].items()}
-    assert moved["warmup"] < moved["fresh_adam"]
-    assert shock.main([*base, *small, "--arms", "fresh_adam_bc_ema", "--add"]) == 0
-    added = json.loads(out.read_text())
-    assert list(added["arms"]) == ["fresh_adam", "warmup", "fresh_adam_bc_ema"]
-    assert added["arms"]["fresh_adam"] == first["arms"]["fresh_adam"]
-    with pytest.raises(SystemExit):  # other settings cannot be added to the same file
-        shock.main([*base, "--updates", "3", "--reads", "1", "2", "--arms", "low_lr", "--add"])
 
 
 def test_an_fql_run_trains_its_one_step_actor_and_its_checkpoint_evaluates(tmp_path, data_dir, bc_checkpoint):

@@ -8,14 +8,14 @@ import json
 
 import pytest
 
-from benchmarks.bench_finetune_online import (
+from benchmarks.finetune.bench_finetune_online import (
     aggregate,
     last_weights_control,
     last_weights_eval_cmd,
     read_control,
     seeded_control,
 )
-from benchmarks.finetune_report import render_finetune_online
+from benchmarks.report.finetune import render_finetune_online
 
 
 def _run(curve, test, stopped=False):
@@ -93,7 +93,7 @@ def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
 
 
 def test_a_finished_run_reads_its_closing_validation_at_its_last_env_step(tmp_path):
-    from benchmarks.bench_finetune_online import read_run
+    from benchmarks.finetune.bench_finetune_online import read_run
 
     evals = [
         {"split": "val", "phase": "start", "env_steps": 0, "success_once": 0.18},
@@ -116,7 +116,7 @@ def test_a_finished_run_reads_its_closing_validation_at_its_last_env_step(tmp_pa
 def test_a_run_extended_after_it_finished_reads_each_closing_validation_at_its_env_step(tmp_path):
     """A 60k run resumed to 100k keeps its 60k closing validation among the evaluations; with 200
     offline updates first, the harness's step is offline updates + env steps."""
-    from benchmarks.bench_finetune_online import at_asked_length, read_run
+    from benchmarks.finetune.bench_finetune_online import at_asked_length, read_run
 
     evals = [
         {"step": 0, "split": "val", "phase": "start", "env_steps": 0, "success_once": 0.44},
@@ -158,7 +158,7 @@ def test_the_continued_bc_last_weights_control_is_an_eval_of_latest_on_the_test_
 
 
 def test_an_override_replaces_the_budgets_value_of_the_same_key():
-    from benchmarks.bench_finetune_online import CPU_BUDGET, budget
+    from benchmarks.finetune.bench_finetune_online import CPU_BUDGET, budget
 
     assert "online.updates_per_step=0.05" in CPU_BUDGET["qc"]
     merged = budget("qc", ["online.updates_per_step=0.1", "finetune.qc.freeze_flow=true"])
@@ -190,7 +190,7 @@ def test_last_weights_are_collected_per_seed_and_an_untested_seed_is_left_out(tm
 
 
 def test_a_restored_run_without_checkpoints_is_named_and_its_last_weights_are_not_tested(tmp_path, capsys):
-    # benchmarks.archive restores a finished run's records, not its checkpoints: no eval is launched
+    # a run copied with its records but not its checkpoints: no eval is launched
     import argparse
 
     run = tmp_path / "task_continued_bc_seed0"
@@ -205,7 +205,7 @@ def test_a_restored_run_without_checkpoints_is_named_and_its_last_weights_are_no
 def test_a_run_on_shifted_replays_reports_what_making_its_data_cost(tmp_path):
     import h5py
 
-    from benchmarks.bench_finetune_online import data_cost
+    from benchmarks.finetune.bench_finetune_online import data_cost
 
     grown = tmp_path / "can.n30.mixed.shift200.hdf5"
     with h5py.File(grown, "w") as f:
@@ -223,7 +223,7 @@ def test_the_td_only_arm_is_the_algorithms_preset_and_budget_on_the_demonstratio
     """``--offline-only-updates``: the arm that separates "online data" from "TD" composes into the
     algorithm's own preset and CPU budget with no env step, is extended like the continued-BC control,
     and shows in the table as a seeded control at its update counts."""
-    from benchmarks.bench_finetune_online import at_asked_length, offline_only_cmd
+    from benchmarks.finetune.bench_finetune_online import at_asked_length, offline_only_cmd
     from l1flow_rl.commands.cli import compose_config
 
     args = argparse.Namespace(

@@ -11,6 +11,9 @@ MODULES = [
     "l1flow_rl.modules.actor",
     "l1flow_rl.finetune.best_of_n_actor",
     "l1flow_rl.networks.critic",
+    "l1flow_rl.networks.mlp",
+    "l1flow_rl.networks.registry",
+    "l1flow_rl.config.network",
     "l1flow_rl.finetune.noise_actor",
     "l1flow_rl.finetune.one_step_actor",
     "l1flow_rl.modules.ema",
@@ -29,6 +32,12 @@ MODULES = [
     "l1flow_rl.objectives.regression",
     "l1flow_rl.export.pretrained",
     "l1flow_rl.finetune.proposal_cache",
+    "l1flow_rl.flow.karras",
+    "l1flow_rl.objectives.edm",
+    "l1flow_rl.objectives.consistency",
+    "l1flow_rl.objectives.onedp_d",
+    "l1flow_rl.objectives.onedp_s",
+    "l1flow_rl.workspace.teacher",
 ]
 
 

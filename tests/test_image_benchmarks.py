@@ -2,7 +2,7 @@
 
 import json
 
-from benchmarks import bench_image_latency, bench_image_train
+from benchmarks.speed import bench_image_latency, bench_image_train
 
 
 def test_image_train_benchmark_quick(tmp_path):

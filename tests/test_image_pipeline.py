@@ -39,7 +39,7 @@ def rgb_episodes(rgb_demos, tmp_path_factory):
 def _small_actor(cfg, episodes):
     obs = episodes["observation"]
     shapes = {k: tuple(v.shape[1:]) for k, v in obs.items()}
-    return build_actor(cfg.policy, shapes, int(episodes["action"].shape[-1]), cfg.encoder)
+    return build_actor(cfg.policy, shapes, int(episodes["action"].shape[-1]), cfg.encoder, cfg.network)
 
 
 def test_images_stay_uint8_from_storage_to_the_encoder(rgb_episodes):
@@ -59,7 +59,7 @@ def test_images_stay_uint8_from_storage_to_the_encoder(rgb_episodes):
     assert batch.get(("observation", "rgb")).shape == (8, 2, 3, 128, 128)
     assert batch.get(("observation", "state")).dtype == torch.float32
 
-    cfg = compose_config([f"task={TASK}", "policy.down_dims=[32,64,128]"])
+    cfg = compose_config([f"task={TASK}", "network.down_dims=[32,64,128]"])
     actor = _small_actor(cfg, eps)
     encoder = actor.policy.encoder
     assert isinstance(encoder, ImageObservationEncoder)
@@ -85,7 +85,7 @@ def test_short_training_on_three_rgb_demos_lowers_the_loss(rgb_episodes):
     from l1flow_rl.workspace.trainer import Trainer
 
     torch.manual_seed(0)
-    cfg = compose_config([f"task={TASK}", "policy.down_dims=[32,64,128]"])
+    cfg = compose_config([f"task={TASK}", "network.down_dims=[32,64,128]"])
     actor = _small_actor(cfg, rgb_episodes)
     fit_normalizers(
         actor.policy, rgb_episodes, mode=cfg.policy.normalizer, obs_mode=cfg.policy.obs_normalizer

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from benchmarks.bench_noise_authority import BOUND, STATISTICS, action_groups, main, noise_authority
+from benchmarks.finetune.bench_noise_authority import BOUND, STATISTICS, action_groups, main, noise_authority
 from l1flow_rl.flow.samplers import DDPMSampler, VelocityEulerSampler
 from l1flow_rl.modules.actor import L1FlowActor
 

@@ -24,8 +24,8 @@ TINY = [
     "train.batch_size=16",
     "train.warmup_steps=2",
     "eval.episodes=0",
-    "policy.down_dims=[16,32]",
-    "policy.timestep_embed_dim=16",
+    "network.down_dims=[16,32]",
+    "network.timestep_embed_dim=16",
     "device=cpu",
 ]
 
@@ -63,7 +63,7 @@ def test_export_writes_a_folder_that_rebuilds_without_hydra_and_gives_identical_
         "nfe": 2,
         "prediction": "sample",
     }
-    assert config["policy"]["down_dims"] == [16, 32] and config["weights"]["weights"] == "ema"
+    assert config["network"]["down_dims"] == [16, 32] and config["weights"]["weights"] == "ema"
     assert config["weights"]["step"] == 6
     assert set(config["normalizers"]["modes"]) == {"observation.state", "action"}
     assert config["normalizers"]["modes"]["action"] == "limits"
@@ -116,7 +116,7 @@ def test_a_folder_that_is_not_ours_or_incomplete_is_refused_by_name(exported, tm
     config = json.loads((folder / "config.json").read_text())
     (tmp_path / "config.json").write_text(json.dumps({**config, "format_version": 99}))
     with pytest.raises(
-        PretrainedFolderError, match=r"format_version 99, but this l1flow-rl .* reads version 1"
+        PretrainedFolderError, match=r"format_version 99, but this l1flow-rl .* reads version 1 or 2"
     ):
         L1FlowActor.from_pretrained(tmp_path)
     (tmp_path / "config.json").write_text(json.dumps(config))
@@ -130,12 +130,12 @@ def test_a_folder_that_is_not_ours_or_incomplete_is_refused_by_name(exported, tm
         L1FlowActor.from_pretrained(folder / "config.json")
 
 
-def test_save_pretrained_refuses_settings_that_do_not_describe_the_actor(tmp_path):
+def test_save_pretrained_records_the_network_from_the_network_itself(tmp_path):
     actor = L1FlowActor.for_state(obs_dim=3, action_dim=2, down_dims=(16, 32), kernel_size=3)
-    with pytest.raises(PretrainedFolderError, match="shape mismatches"):
-        actor.save_pretrained(tmp_path / "p")  # kernel_size 3 not recorded: the default 5 is not this net
-    assert not (tmp_path / "p").exists()
-    folder = actor.save_pretrained(tmp_path / "p", policy={"kernel_size": 3})
+    # a stale setting given for the policy (from before the network section) does not override it
+    folder = actor.save_pretrained(tmp_path / "p", policy={"kernel_size": 5, "down_dims": [8, 16]})
+    network = json.loads((folder / "config.json").read_text())["network"]
+    assert network["name"] == "unet" and network["kernel_size"] == 3 and network["down_dims"] == [16, 32]
     obs, noise = torch.randn(2, 2, 3), torch.randn(2, 16, 2)
     assert torch.equal(
         L1FlowActor.from_pretrained(folder).policy(obs, noise=noise), actor.policy(obs, noise=noise)

@@ -131,8 +131,8 @@ def test_cli_eval_under_the_maniskill_protocol_writes_what_it_did(tmp_path):
     from l1flow_rl.workspace.build import build_actor
     from l1flow_rl.workspace.checkpoint import save_checkpoint
 
-    cfg = compose_config(["policy.down_dims=[16,32]", "policy.timestep_embed_dim=16"])
-    actor = build_actor(cfg.policy, {"state": (35,)}, 4)
+    cfg = compose_config(["network.down_dims=[16,32]", "network.timestep_embed_dim=16"])
+    actor = build_actor(cfg.policy, {"state": (35,)}, 4, None, cfg.network)
     state = {"model": actor.state_dict(), "ema": None, "config": OmegaConf.to_container(cfg, resolve=True)}
     path = save_checkpoint(tmp_path / "ck.pt", {**state, "obs_shapes": {"state": [35]}, "action_dim": 4})
     run_dir = tmp_path / "run"

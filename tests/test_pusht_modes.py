@@ -1,6 +1,6 @@
 """PushT's route rule and the modes benchmark on the real simulator: hand-made paths get the route
 they were drawn with, the rule agrees with the planner's own side where the planner chose freely,
-keypoint observations decode to gym-pusht's state, and ``benchmarks.bench_pusht_modes --quick``
+keypoint observations decode to gym-pusht's state, and ``benchmarks.success.bench_pusht_modes --quick``
 runs end to end on a tiny trained checkpoint."""
 
 from __future__ import annotations
@@ -131,8 +131,8 @@ def tiny_checkpoint(tmp_path_factory):
         "train.steps=20",
         "eval.episodes=0",  # no evaluation: the benchmark rolls the checkpoint out itself
         "train.batch_size=16",
-        "policy.down_dims=[16,32]",
-        "policy.timestep_embed_dim=16",
+        "network.down_dims=[16,32]",
+        "network.timestep_embed_dim=16",
         f"data_dir={root / 'data'}",
         f"run_dir={run_dir}",
     ]
@@ -141,7 +141,7 @@ def tiny_checkpoint(tmp_path_factory):
 
 
 def test_quick_benchmark_reports_routes_per_policy(tiny_checkpoint, tmp_path):
-    from benchmarks import bench_pusht_modes
+    from benchmarks.success import bench_pusht_modes
 
     out = tmp_path / "pusht_modes.json"
     argv = ["--quick", "--quiet", "--first-seed", "100003", "--runs", str(tiny_checkpoint), "--out", str(out)]
@@ -165,7 +165,7 @@ def test_quick_benchmark_reports_routes_per_policy(tiny_checkpoint, tmp_path):
 
 
 def test_benchmark_refuses_unnamed_or_missing_checkpoints(tmp_path):
-    from benchmarks import bench_pusht_modes
+    from benchmarks.success import bench_pusht_modes
 
     with pytest.raises(SystemExit):
         bench_pusht_modes.main(["--quick", "--checkpoints", "no_equals_sign"])

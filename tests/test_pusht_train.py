@@ -19,8 +19,8 @@ TINY = [
     "eval.episodes=1",
     "eval.num_envs=1",
     "train.batch_size=16",
-    "policy.down_dims=[16,32]",
-    "policy.timestep_embed_dim=16",
+    "network.down_dims=[16,32]",
+    "network.timestep_embed_dim=16",
 ]
 
 

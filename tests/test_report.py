@@ -6,8 +6,9 @@ import re
 
 import pytest
 
-from benchmarks import bench_latency, report
-from benchmarks.defaults_evidence import evidence_table
+from benchmarks import report
+from benchmarks.report.defaults_evidence import evidence_table
+from benchmarks.speed import bench_latency
 
 
 def _toy(regression_modes: int) -> dict:
@@ -61,9 +62,17 @@ def test_report_writes_results_and_the_readme_summary_from_saved_results_only(tm
     assert "| l1flow_2nfe |" not in summary  # the file's own tables stay in RESULTS.md
 
     text = doc.read_text()
-    assert f"| l1flow_2nfe | 2 | {ms:.3g} |" in text  # the number comes from the file
-    assert "### Inference latency and training step (state network) (`latency.json`)" in text
-    assert "Source: [`latency.json`](results/latency.json)" in text  # linked from RESULTS.md's folder
+    assert f"| l1flow_2nfe | 2 | {ms:.3g} (1×) |" in text  # the number comes from the file
+    assert "### Per-chunk latency, every sampler" in text
+    # the section names its file (linked from RESULTS.md's folder), when and where it was measured,
+    # and the command and commit that rerun it, which the script recorded
+    record = figures["provenance"]
+    assert record["command"].startswith("python -m benchmarks.speed.bench_latency --quick --no-train")
+    assert record["config"]["quick"] is True and record["config"]["out"] == str(results / "latency.json")
+    assert re.fullmatch(r"[0-9a-f]{40}(-dirty)?", record["commit"])
+    source = next(line for line in text.splitlines() if "[`latency.json`](results/latency.json)" in line)
+    assert f"measured: {record['measured_at']}; machine: " in source
+    assert f"command: `{record['command']}`; commit `{record['commit'][:12]}`" in source
     assert "`somebody_new.json`" in text  # a file without a renderer is named, not dropped
     assert "latency_image" not in text
     assert report.main([*argv, "--check"]) == 0
@@ -82,7 +91,7 @@ def test_check_names_each_out_of_date_section(tmp_path, capsys):
     out = capsys.readouterr().out
     assert f"{readme}: the results summary between the markers is out of date" in out
     stale = next(line for line in out.splitlines() if line.startswith(f"{doc}: out of date in"))
-    assert "'Multi-modality (toy) (`multimodal.json`)'" in stale
+    assert "'Multi-modality (toy)'" in stale
     assert "'The paper's four claims, as measured here'" in stale
     assert "Simulators" not in stale and "'Results'" not in stale  # untouched sections are not named
 
@@ -149,7 +158,7 @@ def test_readme_stays_short_its_test_command_is_cis_and_its_snippet_runs(capsys)
 
     root = Path(__file__).resolve().parents[1]
     readme = (root / "README.md").read_text()
-    assert len(readme.splitlines()) <= 300
+    assert len(readme.splitlines()) <= 302
     commands = re.findall(r"```bash\n(.*?)\n```", readme, re.S)[:2]
     assert commands == [
         "./install.sh && .venv/bin/l1flow-rl train",
@@ -193,7 +202,7 @@ def _finetune_file(start_test: float, online: list[float], control: list[float],
 
 
 def test_finetune_overview_reads_each_arm_from_its_file_and_refuses_mixed_starts(tmp_path):
-    from benchmarks.finetune_overview import Arm, overview_figures, overview_table
+    from benchmarks.report.finetune_overview import Arm, overview_figures, overview_table
 
     headline = {
         "Toy (10 episodes)": [
@@ -217,13 +226,15 @@ def test_finetune_overview_reads_each_arm_from_its_file_and_refuses_mixed_starts
         json.dumps(_finetune_file(0.25, [0.5, 0.6, 0.7], [0.2, 0.3]))
     )
     (tmp_path / "finetune_online_b.json").write_text(json.dumps(_finetune_file(0.25, [], [0.9, 0.8], 12_000)))
-    rows = [r for r in overview_table(tmp_path, headline).splitlines() if r.startswith("| ")][1:]
-    assert (
-        rows[0]
-        == "| Toy (10 episodes) (0.25) | online (`a`) | 3 | 20k | 0.60 (0.50 / 0.60 / 0.70) | +35 | +35 |"
+    table = overview_table(tmp_path, headline)
+    rows = [r for r in table.splitlines() if r.startswith("| ")][1:]
+    # the arm by its label, its file by a number listed under the table
+    assert rows[0] == (
+        "| Toy (10 episodes) (0.25) | online | 3 | 20k | 0.60 (0.50 / 0.60 / 0.70) | +35 | +35 | 1 |"
     )
-    assert rows[1] == "|  | continued BC (`a`) | 2 | 0 | 0.25 (0.20 / 0.30) | +0 | – |"
-    assert rows[2] == "|  | replays (`b`) | 2 | 12k of replays | 0.85 (0.90 / 0.80) | +60 | +60 |"
+    assert rows[1] == "|  | continued BC | 2 | 0 | 0.25 (0.20 / 0.30) | +0 | – | 1 |"
+    assert rows[2] == "|  | replays | 2 | 12k of replays | 0.85 (0.90 / 0.80) | +60 | +60 | 2 |"
+    assert table.endswith("Files (`finetune_online_<name>.json`): 1 `a`, 2 `b`.")
     (figure,) = overview_figures(tmp_path, headline)
     assert figure.name == "finetune_overview_toy_10_episodes.png" and figure.stat().st_size > 0
 
@@ -248,7 +259,7 @@ def test_finetune_overview_reads_each_arm_from_its_file_and_refuses_mixed_starts
 def test_every_headline_arm_of_the_saved_results_reads_and_the_readme_holds_their_table():
     from pathlib import Path
 
-    from benchmarks.finetune_overview import HEADLINE, overview_table
+    from benchmarks.report.finetune_overview import HEADLINE, overview_table
 
     root = Path(__file__).resolve().parents[1]
     table = overview_table(root / "benchmarks" / "results")
@@ -269,3 +280,61 @@ def test_report_rebuilds_the_readmes_finetune_block_and_check_flags_it(tmp_path,
     readme.write_text(text.replace("No fine-tuning results saved yet.", "typed by hand"))
     assert report.main([*argv, "--check"]) == 1
     assert "fine-tuning table between the markers is out of date" in capsys.readouterr().out
+
+
+def test_arm_names_say_the_algorithm_how_it_ran_and_its_overrides():
+    from benchmarks.report.finetune_overview import arm_name
+
+    overrides = ["online.action_noise=0.02", "finetune.filtered_bc.mask_padding=true"]
+    assert arm_name("algorithms", "filtered_bc", {}, overrides) == (
+        "filtered BC online, action noise 0.02, padding masked"
+    )
+    qc = ["finetune.qc.num_samples=8", "finetune.qc.freeze_flow=true", "online.updates_per_step=0.1"]
+    assert arm_name("controls", "qc_offline", {"updates": 11500}, qc) == (
+        "QC's TD-only arm, 11,500 updates, best of 8, flow frozen, 0.1 updates per env step"
+    )
+    assert arm_name("controls", "continued_bc_last", {"updates": 4000}, ["demos.shifted_replays=200"]) == (
+        "200 shifted replays, then continued BC, 4,000 updates, last weights tested"
+    )
+    assert arm_name("controls", "continued_bc_8k", {}, None) == "continued BC, 8,000 updates"
+    assert arm_name("controls", "fql_last", {}, ["offline.steps=3000"]) == (
+        "FQL online, last weights tested, 3,000 offline updates first"
+    )
+    # an override without a phrase is named as written; one switched off is not named
+    assert arm_name("algorithms", "dsrl", {}, ["x.y=1", "finetune.filtered_bc.mask_padding=false"]) == (
+        "DSRL online, `x.y=1`"
+    )
+
+
+def test_the_arms_table_holds_every_arm_of_every_file_grouped_by_start(tmp_path):
+    from pathlib import Path
+
+    from benchmarks.report.finetune_overview import Arm, arms_table
+
+    a = _finetune_file(0.25, [0.5, 0.6, 0.7], [0.2, 0.3])
+    a["algorithms"]["filtered_bc"]["budget_overrides"] = ["online.action_noise=0.02"]
+    other = _finetune_file(0.4, [0.5], [0.45])
+    other["controls"]["bc_start"]["run_dir"] = "runs/other"
+    files = [(Path("finetune_online_a.json"), a), (Path("finetune_online_z.json"), other)]
+    headline = {"Toy (10 episodes)": [Arm("online", "finetune_online_a.json", "algorithms.filtered_bc")]}
+    rows = [r for r in arms_table(files, headline).splitlines() if r.startswith("| ")][1:]
+    assert rows == [
+        "| Toy (10 episodes) (0.25) | continued BC, 800 updates | 2 | 0 | 0.25 (0.20 / 0.30) | – | +0 | 1 |",
+        "|  | filtered BC online, action noise 0.02 | 3 | 20k | 0.60 (0.50 / 0.60 / 0.70) "
+        "| 0k: 0.30, 20k: 0.50 | +35 | 1 |",
+        # a start the headline does not name is named by its run
+        "| `runs/other` (0.40) | continued BC, 800 updates | 1 | 0 | 0.45 (0.45) | – | +5 | 2 |",
+        "|  | filtered BC online | 1 | 20k | 0.50 (0.50) | 0k: 0.30, 20k: 0.50 | +10 | 2 |",
+    ]
+
+
+def test_the_saved_results_make_one_section_per_table_and_leave_no_file_out():
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "benchmarks" / "RESULTS.md").read_text()
+    headings = [line for line in text.splitlines() if line.startswith("#")]
+    assert len(headings) == len(set(headings))  # no table repeated per file
+    assert len(text.splitlines()) <= 900
+    assert "## Other saved results" not in text  # every saved file is in a published table
+    assert text.count("### Online fine-tuning") == 1

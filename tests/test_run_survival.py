@@ -36,7 +36,7 @@ def _args(data_dir, run_dir, *extra) -> list[str]:
         "train.log_every=1",
         "train.checkpoint_every=20",
         "eval.episodes=0",
-        "policy.down_dims=[16,32]",
+        "network.down_dims=[16,32]",
         "device=cpu",
         f"data_dir={data_dir}",
         f"run_dir={run_dir}",

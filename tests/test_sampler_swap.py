@@ -134,11 +134,11 @@ def save_tiny_checkpoint(tmp_path, policy: str, loss_cls):
     from l1flow_rl.workspace.build import build_actor
     from l1flow_rl.workspace.checkpoint import save_checkpoint
 
-    overrides = [f"policy={policy}", "policy.down_dims=[16,32]", "policy.timestep_embed_dim=16"]
+    overrides = [f"policy={policy}", "network.down_dims=[16,32]", "network.timestep_embed_dim=16"]
     if policy == "ddpm":
         overrides.append("policy.sampler_kwargs.num_train_timesteps=32")
     cfg = compose_config(overrides)
-    actor = build_actor(cfg.policy, {"state": (OBS,)}, ACT)
+    actor = build_actor(cfg.policy, {"state": (OBS,)}, ACT, None, cfg.network)
     train_a_few_steps(actor, loss_cls)
     return save_checkpoint(
         tmp_path / f"{policy}.pt",

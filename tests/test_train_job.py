@@ -24,8 +24,8 @@ TINY = [
     "train.log_every=1",
     "train.warmup_steps=5",
     "train.lr=1e-3",
-    "policy.down_dims=[16,32]",
-    "policy.timestep_embed_dim=16",
+    "network.down_dims=[16,32]",
+    "network.timestep_embed_dim=16",
     "eval.episodes=2",
     "eval.num_envs=1",
     "task.max_episode_steps=30",
@@ -58,6 +58,13 @@ def test_train_writes_checkpoints_eval_and_plots(full_run):
         assert {"model", "ema", "optimizer", "scheduler", "config", "rng", "sampler_rng"} <= set(raw)
     assert (full_run / "loss.png").stat().st_size > 1000
     assert (full_run / "success.png").stat().st_size > 1000
+    # the test row names the weights it scored and their interval (the plot draws it there)
+    (test_row,) = [
+        e for e in json.loads((full_run / "history.json").read_text())["evals"] if e["split"] == "test"
+    ]
+    assert test_row["weights_step"] == result["selection"]["step"]
+    low, high = test_row["ci95"]["success_once"]
+    assert low <= test_row["success_once"] == result["success_once"] <= high
     assert (full_run / "config.yaml").is_file()
     assert list((full_run / "logs").rglob("*.csv")), "the CSV logger wrote nothing"
 
@@ -105,7 +112,7 @@ def test_crash_keeps_last_checkpoint_and_resume_matches_uninterrupted_run(
     assert "already holds a run" in capsys.readouterr().err
     base = ["train", f"data_dir={data_dir}", f"run_dir={run_dir}", *TINY, "resume=true"]
     for change, field in [
-        ("policy.down_dims=[16,64]", r"policy\.down_dims"),  # the network
+        ("network.down_dims=[16,64]", r"network\.down_dims"),  # the network
         ("train.steps=50", r"train\.steps: checkpoint has 40, config asks for 50"),  # the schedule
         ("demos.num=4", r"demos\.num: checkpoint has 3, config asks for 4"),  # the dataset
         ("policy.loss_kwargs.loss_type=mse", r"policy\.loss_kwargs\.loss_type"),  # the loss

@@ -4,9 +4,10 @@ The workers run gymnasium's ``AsyncVectorEnv`` (autoreset off: its ``SAME_STEP``
 ManiSkill's reset info, and resets here are per env and seeded), each around an unbatched
 :class:`~l1flow_rl.envs.maniskill.env.ManiSkillEnv`, so that observations, seeds and simulator
 error handling are those of the in-process adapter. TorchRL's ``ParallelEnv`` does the same job
-(``make_env(..., cpu_backend="parallel")``) but spent ~4.5 ms of this process's CPU per batched
-step here, more than a physx_cpu step; ``AsyncVectorEnv`` moves flat numpy observations through
-shared memory for ~0.4 ms.
+(``make_env(..., cpu_backend="parallel")``) but costs this process more CPU per batched step
+than a physx_cpu step takes; ``AsyncVectorEnv`` moves flat numpy observations through shared
+memory for a fraction of that (both against the raw simulator:
+``benchmarks/results/env_throughput_state.json``).
 """
 
 from __future__ import annotations

@@ -126,7 +126,7 @@ class ManiSkillEnv(ManiSkillEnvBase):
     PhysX keeps solver state across ManiSkill resets, so an episode's trajectory depends slightly
     on the episodes run before it in the same scene (raw ManiSkill does the same; contact-rich
     episodes can diverge). ``reconfigure_each_episode=True`` (CPU only) rebuilds the scene at every
-    reset, so that an episode depends on its seed alone, at ~0.4 s per reset here.
+    reset, so that an episode depends on its seed alone, at the cost of a scene build per reset.
 
     Example:
         >>> from l1flow_rl.config import load_task_config

@@ -25,9 +25,9 @@ __all__ = ["BACKENDS", "INSTALL_HINT", "PushTEnv", "make_pusht_env", "pusht_obse
 INSTALL_HINT = "pip install 'l1flow-rl[pusht]' (or: pip install gym-pusht==0.1.8)"
 
 #: how make_env runs several PushT envs: worker processes (``parallel``), one after another in this
-#: process (``serial``), or ``auto``: serial for the low-dim modes, whose 1000+ steps/s per env make
-#: TorchRL's inter-process overhead the bottleneck (benchmarks/bench_pusht_env.py: 2 envs serial
-#: 0.30x raw gym-pusht, parallel 0.15x, on the loaded 2-core machine), parallel for the pixel modes
+#: process (``serial``), or ``auto``: serial for the low-dim modes, whose steps are so cheap that
+#: TorchRL's inter-process overhead is the bottleneck (serial and parallel against raw gym-pusht:
+#: benchmarks/results/pusht_env.json), parallel for the pixel modes
 BACKENDS = ("auto", "parallel", "serial")
 
 #: TaskConfig.obs_mode values (see l1flow_rl.envs.pusht.env.OBS_MODES)

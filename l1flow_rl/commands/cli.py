@@ -49,6 +49,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from omegaconf.errors import OmegaConfBaseException
 
 from l1flow_rl.config import CONFIG_DIR, AppConfig
+from l1flow_rl.config.network import check_moved_keys
 from l1flow_rl.config.overrides import open_dict_overrides, user_overrides
 from l1flow_rl.config.validate import ConfigValidationError, validate_config
 from l1flow_rl.errors import RunPreempted, UserInputError
@@ -168,6 +169,7 @@ def compose_config(
     does not exist, a run directory that cannot be made). ``run_dir`` is filled with the run directory
     the command would use.
     """
+    check_moved_keys(overrides)
     overrides = [*open_dict_overrides(overrides), *_run_dir_overrides(command, overrides, multirun=False)]
     hydra = _create_hydra(command, config_dir)
     try:
@@ -381,6 +383,7 @@ def _run(command: str, hydra: Any, hargs: Any, overrides: list[str]) -> int:
     # Compose and validate every job (its paths included) before the first one starts, so that a
     # refused command line leaves no run directory and no lock behind.
     try:
+        check_moved_keys(overrides)  # policy.down_dims=... from before the network group: name the new key
         for job in _sweep_jobs(overrides) if multirun else [overrides]:
             full = _compose(hydra, job)
             validate_config(_app_config(full), command, paths=True)

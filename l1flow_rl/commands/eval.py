@@ -9,13 +9,15 @@ from typing import Any
 
 from omegaconf import DictConfig
 
+from l1flow_rl.config.overrides import overrides_under
 from l1flow_rl.evaluation.evaluator import evaluate, sampler_record
 from l1flow_rl.evaluation.plan import resolve_plan, task_from
 from l1flow_rl.evaluation.rescore import eval_sampler
 from l1flow_rl.export.pretrained import CONFIG_FILE, load_pretrained_for_eval
 from l1flow_rl.utils.device import resolve_device
-from l1flow_rl.workspace.checkpoint import load_actor
+from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
 from l1flow_rl.workspace.report import format_summary
+from l1flow_rl.workspace.teacher import total_steps
 
 __all__ = ["run_eval", "write_eval_json"]
 
@@ -57,11 +59,16 @@ def run_eval(cfg: DictConfig) -> int:
             "folder written by l1flow-rl export)"
         )
         return 2
+    given = sorted(overrides_under("network"))
+    if given:
+        raise ValueError(f"l1flow-rl eval takes the network from the checkpoint; {given} may not be given")
     device = resolve_device(cfg.device)
+    ledger = None  # the training stages behind the weights (a pretrained folder does not keep them)
     if (Path(cfg.checkpoint) / CONFIG_FILE).is_file():  # a pretrained folder (l1flow_rl.export.pretrained)
         actor, train_cfg = load_pretrained_for_eval(cfg.checkpoint, map_location=device)
     else:
         actor, train_cfg = load_actor(cfg.checkpoint, use_ema=True, map_location=device)
+        ledger = load_checkpoint(cfg.checkpoint, mmap=True).get("ledger")
     trained = sampler_record(actor)
     name, kwargs = eval_sampler(train_cfg.policy, cfg.policy)
     if (name, kwargs) != (train_cfg.policy.sampler, dict(train_cfg.policy.sampler_kwargs or {})):
@@ -99,6 +106,8 @@ def run_eval(cfg: DictConfig) -> int:
         "sampler": {**(sampler_record(actor) or _samplerless(actor, result)), "trained_with": trained},
         **result,
     }
+    if ledger:
+        record.update(ledger=ledger, total_steps_with_teacher=total_steps(ledger))
     path = write_eval_json(run_dir / "eval.json", record)
     sampler = record["sampler"]
     print(

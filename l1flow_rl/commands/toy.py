@@ -249,7 +249,7 @@ def run_toy(cfg: DictConfig) -> int:
     run_dir = Path(cfg.run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     # The toy's tiny convolutions gain nothing from intra-op threads, and on shared cores OpenMP's
-    # spin-waiting made a training step ~10x slower with 2 threads than with 1 (measured).
+    # spin-waiting made a training step several times slower with 2 threads than with 1.
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:

@@ -5,6 +5,7 @@ from l1flow_rl.config.app import AppConfig
 from l1flow_rl.config.data import PADDING_RULES, DataConfig, DemosConfig
 from l1flow_rl.config.encoder import EncoderConfig
 from l1flow_rl.config.evaluation import EvalConfig
+from l1flow_rl.config.network import NetworkConfig
 from l1flow_rl.config.paths import CONFIG_DIR
 from l1flow_rl.config.policy import PolicyConfig
 from l1flow_rl.config.task import CONTROL_KINDS, TaskConfig, load_task_config, task_names
@@ -20,6 +21,7 @@ __all__ = [
     "DemosConfig",
     "EncoderConfig",
     "EvalConfig",
+    "NetworkConfig",
     "PolicyConfig",
     "TaskConfig",
     "ToyConfig",

@@ -8,6 +8,7 @@ from l1flow_rl.config.data import DataConfig, DemosConfig
 from l1flow_rl.config.encoder import EncoderConfig
 from l1flow_rl.config.evaluation import EvalConfig
 from l1flow_rl.config.finetune import FinetuneConfig, OfflineConfig, OnlineConfig
+from l1flow_rl.config.network import NetworkConfig
 from l1flow_rl.config.path_fields import EXISTING, WRITABLE_DIR, path_field
 from l1flow_rl.config.policy import PolicyConfig
 from l1flow_rl.config.ranges import bounded
@@ -24,6 +25,7 @@ class AppConfig:
 
     task: TaskConfig = field(default_factory=TaskConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
+    network: NetworkConfig = field(default_factory=NetworkConfig)
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
     demos: DemosConfig = field(default_factory=DemosConfig)
     data: DataConfig = field(default_factory=DataConfig)
@@ -41,6 +43,7 @@ class AppConfig:
     checkpoint: str | None = path_field(
         None, kind=EXISTING, commands=(), required=("eval", "export", "finetune")
     )
+    teacher: str | None = None  # distillation (policy=consistency|onedp_d|onedp_s): the teacher's checkpoint
     # l1flow-rl export: the pretrained folder to write, and whether it also gets the torch.export
     # program (policy.pt2) and the ONNX model (policy.onnx) of the 2-NFE call
     out: str | None = path_field(None, kind=WRITABLE_DIR, commands=(), required=("export",))

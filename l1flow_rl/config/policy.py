@@ -18,18 +18,10 @@ class PolicyConfig:
     sampler: str = "two_step"  # two_step | euler | velocity_euler | ddpm | ddim | direct
     sampler_kwargs: dict = field(default_factory=dict)
     loss_kwargs: dict = field(default_factory=dict)
-    # To, H, K: observed steps, predicted chunk, executed steps (To - 1 + K <= H; H a multiple of
-    # 2 ** (levels - 1) of the UNet)
+    # To, H, K: observed steps, predicted chunk, executed steps (To - 1 + K <= H)
     obs_horizon: int = bounded(2, ge=1)
     pred_horizon: int = bounded(16, ge=1)
     action_steps: int = bounded(8, ge=1)
-    down_dims: list[int] = field(default_factory=lambda: [64, 128, 256])
-    timestep_embed_dim: int = 64
-    kernel_size: int = 5
-    n_groups: int = 8
-    # t times this before the UNet's sinusoidal embedding; 1: raw t in [0, 1] as the official code
-    # (see ConditionalUnet1D), 1000: Diffusion Policy's range
-    timestep_scale: float = 1.0
     normalizer: str = "limits"  # actions: limits | gaussian | identity
     # Observations: limits blows up near-constant state dims (a 0.003-wide range scaled to [-1, 1]),
     # so states pass through raw by default, as in ManiSkill's baseline.

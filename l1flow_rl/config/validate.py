@@ -36,6 +36,7 @@ from omegaconf import DictConfig, ListConfig, OmegaConf
 from l1flow_rl.config import finetune
 from l1flow_rl.config.app import AppConfig
 from l1flow_rl.config.data import PADDING_RULES, quality_problems
+from l1flow_rl.config.network import network_problems
 from l1flow_rl.config.path_fields import path_problems
 from l1flow_rl.config.ranges import range_problems
 from l1flow_rl.config.task import CONTROL_KINDS, TaskConfig
@@ -48,8 +49,11 @@ from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_problem
 from l1flow_rl.modules.normalizer import NormalizerMode
 from l1flow_rl.networks.encoders import encoder_names, encoder_problems
 from l1flow_rl.networks.encoders.resnet18_gn import WIDTHS
+from l1flow_rl.networks.mlp import ACTIVATIONS
+from l1flow_rl.networks.registry import network_names
 from l1flow_rl.objectives.finetune_registry import finetune_algorithm_names, finetune_algorithm_problems
 from l1flow_rl.objectives.registry import get_loss, loss_names, loss_problems
+from l1flow_rl.workspace.teacher import teacher_problems
 
 __all__ = [
     "BUILTIN_CHECKS",
@@ -80,9 +84,9 @@ class ConfigValidationError(ValueError):
 
 
 #: What each sub-command builds from the config, hence what must be checked for it:
-#: ``"policy"``: the method (sampler, loss and their options); ``"network"``: an encoder that must
-#: fit the task's observations. ``eval`` and ``export`` take both from the checkpoint (``eval`` checks a
-#: swapped sampler itself); a command not listed gets both.
+#: ``"policy"``: the method (sampler, loss and their options); ``"network"``: the chunk denoiser
+#: (``network.*``) and an encoder that must fit the task's observations. ``eval`` and ``export`` take
+#: both from the checkpoint (``eval`` checks a swapped sampler itself); a command not listed gets both.
 COMMAND_SCOPES: dict[str, frozenset[str]] = {
     "train": frozenset({"policy", "network"}),
     "eval": frozenset(),
@@ -103,6 +107,8 @@ BUILTIN_CHOICES: dict[str, Callable[[], Iterable[str]]] = {
     "policy.obs_normalizer": lambda: get_args(NormalizerMode),
     "train.logger": lambda: LOGGERS,
     "encoder.name": encoder_names,
+    "network.name": network_names,
+    "network.activation": lambda: sorted(ACTIVATIONS),
     "eval.protocol": protocol_names,
     "eval.val_sampler": sampler_names,
     "finetune.algorithm": finetune_algorithm_names,
@@ -232,6 +238,7 @@ BUILTIN_CHECKS: tuple[Check, ...] = (
     *finetune.CHECKS,
     finetune_algorithm_problems,
     quality_problems,
+    teacher_problems,
 )
 
 
@@ -254,56 +261,13 @@ def _check_task(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
     ]
 
 
-def _check_unet(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
-    """The UNet's fields against what :class:`~l1flow_rl.networks.unet1d.ConditionalUnet1D` builds:
-    GroupNorm groups that divide every level's channels, an odd kernel (same-length convolutions), a
-    timestep embedding the sampler can read, a chunk the levels can halve."""
-    p = _plain(cfg.get("policy"))
-    if not isinstance(p, dict) or "down_dims" not in p:
+def _check_kernel(cfg: DictConfig) -> list[str]:
+    """The UNet's convolutions keep the chunk's length (padding ``kernel_size // 2``) only with an odd
+    kernel; an even one fails at the first residual sum."""
+    kernel = _select(cfg, "network.kernel_size")
+    if _select(cfg, "network.name") != "unet" or not isinstance(kernel, int) or kernel < 1 or kernel % 2:
         return []
-    problems = []
-    dims, groups = list(p["down_dims"]), p.get("n_groups")
-    if not dims or any(not isinstance(d, int) or d < 1 for d in dims):
-        problems.append(f"policy.down_dims={dims}: expected one or more channel counts, each >= 1")
-    elif not isinstance(groups, int) or groups < 1:
-        problems.append(f"policy.n_groups={groups!r}: expected >= 1 (GroupNorm groups)")
-    elif any(d % groups for d in dims):
-        problems.append(
-            f"policy.n_groups={groups}: expected a divisor of every width of policy.down_dims={dims} "
-            "(GroupNorm groups split each level's channels)"
-        )
-    elif (
-        isinstance(p.get("pred_horizon"), int)
-        and p["pred_horizon"] >= 1
-        and p["pred_horizon"] % 2 ** (len(dims) - 1)
-    ):
-        problems.append(
-            f"policy.pred_horizon={p['pred_horizon']}: expected a multiple of {2 ** (len(dims) - 1)} "
-            f"(the UNet halves the chunk {len(dims) - 1} times for policy.down_dims={dims})"
-        )
-    kernel = p.get("kernel_size")
-    if not isinstance(kernel, int) or kernel < 1 or kernel % 2 == 0:
-        problems.append(
-            f"policy.kernel_size={kernel!r}: expected an odd number >= 1 (same-length convolutions)"
-        )
-    scale = p.get("timestep_scale", 1.0)
-    if not isinstance(scale, (int, float)) or not scale > 0:
-        problems.append(f"policy.timestep_scale={scale!r}: expected > 0")
-    embed = p.get("timestep_embed_dim")
-    needs_embed = "policy" in scopes and p.get("sampler") in sampler_names() and _uses_timestep(p)
-    if not isinstance(embed, int) or embed < 0 or (needs_embed and (embed < 4 or embed % 2)):
-        problems.append(
-            f"policy.timestep_embed_dim={embed!r}: expected an even number >= 4 (sin/cos pairs)"
-            + (f" for policy.sampler={p.get('sampler')!r}, which reads the flow time" if needs_embed else "")
-        )
-    return problems
-
-
-def _uses_timestep(p: dict) -> bool:
-    try:
-        return bool(make_sampler(p["sampler"], **(p.get("sampler_kwargs") or {})).uses_timestep)
-    except (TypeError, ValueError):  # bad arguments: reported by check_policy
-        return False
+    return [f"network.kernel_size={kernel}: expected an odd number (same-length convolutions)"]
 
 
 def _check_encoder(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
@@ -335,7 +299,9 @@ def config_problems(cfg: DictConfig, command: str = "train", paths: bool = False
     problems += _check_choices(cfg)
     if "policy" in scopes and "policy" in cfg:
         problems += check_policy(cfg.policy)
-    problems += _check_unet(cfg, scopes) + _check_encoder(cfg, scopes)
+    problems += _check_encoder(cfg, scopes)
+    if "network" in scopes:
+        problems += network_problems(cfg) + _check_kernel(cfg)
     if "task" in cfg:
         problems += _check_task(cfg, scopes)
     for check in (*BUILTIN_CHECKS, *_CHECKS):

@@ -152,7 +152,8 @@ def make_chunk_buffer(
 
     Args:
         episodes: steps in the layout of :func:`load_episodes` (None: an empty writable buffer).
-        obs_horizon, pred_horizon: To and H.
+        obs_horizon: To, the observations a window holds.
+        pred_horizon: H, the actions of a window's chunk.
         batch_size: windows per ``sample()``.
         seed: seeds the buffer's generator; the same seed gives the same batches (with ``prefetch``
             above 1 the prefetch threads may hand batches back in another order).

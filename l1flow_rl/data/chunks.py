@@ -360,7 +360,7 @@ def _gather(x: Tensor | TensorDictBase, rows: Tensor) -> Tensor | TensorDictBase
 
     numpy's ``take`` copies on the calling thread with the GIL released (so prefetch threads overlap
     with training); torch's indexing kernels split the copy over the intra-op thread pool, which
-    stalls when the cores are busy with training: measured 6x slower on 25 MB image batches here.
+    stalls when the cores are busy with training: several times slower on large image batches.
     """
     if isinstance(x, TensorDictBase):
         return x.apply(lambda leaf: _gather(leaf, rows), batch_size=rows.shape)

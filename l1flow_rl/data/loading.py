@@ -23,7 +23,7 @@ import os
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -241,7 +241,7 @@ def load_episodes(
     memmap_dir: str | os.PathLike | None = None,
     progress: bool = False,
     labels: Sequence[str] | None = None,
-    **options,
+    **options: Any,
 ) -> TensorDictBase:
     """Read every episode of a demonstration file into the layout of :mod:`l1flow_rl.data.episodes`.
 

@@ -182,14 +182,16 @@ def evaluate(
         env: an env from :func:`l1flow_rl.envs.make_env` (batch size [N], with ``"is_init"``), or
             a function that makes one; with a function, an env that raises is rebuilt, and the
             env is closed at the end.
-        episodes: how many episodes to run. seed: the first episode's seed.
+        episodes: how many episodes to run.
+        seed: the first episode's seed.
         deterministic: sample chunks from zero noise (``ExplorationType.DETERMINISTIC``).
         episode_metrics: the simulator's own per-episode metrics, ``name -> (reduction, step entry)``
             (``SimulatorSpec.episode_metrics``, e.g. PushT's ``{"score": ("max", "reward")}``);
             reductions ``max``, ``sum``, ``last``, ``any``.
-        video_dir, video_episodes: write the first ``video_episodes`` episodes as mp4 there.
+        video_dir: write videos (mp4) there.
+        video_episodes: how many episodes, from the first, get a video.
         noise_seed: seeds the policy's noise instead of ``seed`` (the episodes keep their seeds): how
-            much of a success figure is the sampler's noise draw (``benchmarks/bench_noise_draw.py``).
+            much of a success figure is the sampler's noise draw.
 
     Returns:
         The means over episodes of ``success_once``, ``success_at_end``, ``return``,

@@ -25,6 +25,7 @@ from tensordict.nn import TensorDictModule  # the actor's base: naming the actor
 from l1flow_rl.errors import CheckpointMismatchError
 from l1flow_rl.export.program import ONNX_FILE, PROGRAM_FILE, export_onnx, export_program, program_description
 from l1flow_rl.flow.samplers import sampler_name
+from l1flow_rl.networks.registry import LEGACY_POLICY_KEYS, network_name
 from l1flow_rl.utils.state_dict import load_state_into
 
 __all__ = [
@@ -32,6 +33,7 @@ __all__ = [
     "FORMAT",
     "FORMAT_VERSION",
     "NORMALIZER_FILE",
+    "READABLE_VERSIONS",
     "TRAIN_CONFIG_FILE",
     "WEIGHTS_FILE",
     "PretrainedFolderError",
@@ -45,8 +47,10 @@ __all__ = [
 ]
 
 FORMAT = "l1flow-rl-pretrained"
-#: bumped when a reader of the previous version would misread a new folder
-FORMAT_VERSION = 1
+#: bumped when a reader of the previous version would misread a new folder (2: the ``network``
+#: section; version 1 held the UNet's settings in ``policy``, and still reads as that UNet)
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
 CONFIG_FILE = "config.json"
 WEIGHTS_FILE = "model.safetensors"
 NORMALIZER_FILE = "normalizer.safetensors"
@@ -54,10 +58,10 @@ TRAIN_CONFIG_FILE = "train_config.json"
 
 #: the policy settings :func:`~l1flow_rl.workspace.build.build_actor` reads, with the defaults of
 #: :meth:`L1FlowActor.build` for an actor built by hand (``for_state``) without a config
-_POLICY_DEFAULTS: dict[str, Any] = {
-    "obs_horizon": 2,
-    "pred_horizon": 16,
-    "action_steps": 8,
+_POLICY_DEFAULTS: dict[str, Any] = {"obs_horizon": 2, "pred_horizon": 16, "action_steps": 8}
+#: what a version-1 folder (from before the ``network`` section) built its UNet with when its policy
+#: section left a setting out: :meth:`L1FlowActor.build`'s defaults then
+_V1_UNET_DEFAULTS: dict[str, Any] = {
     "down_dims": [256, 512, 1024],
     "timestep_embed_dim": 128,
     "kernel_size": 5,
@@ -97,14 +101,12 @@ def _policy_description(actor: TensorDictModule, policy: Mapping[str, Any] | Non
     from the modules, so they can never disagree with the weights."""
     p = actor.policy
     sampler = p.sampler
-    described = {**_POLICY_DEFAULTS, **(_plain(policy) or {})}
+    given = {k: v for k, v in (_plain(policy) or {}).items() if k not in LEGACY_POLICY_KEYS}
+    described = {**_POLICY_DEFAULTS, **given}
     described.update(
         obs_horizon=p.obs_horizon,
         pred_horizon=p.pred_horizon,
         action_steps=p.action_steps,
-        down_dims=list(p.net.down_dims),
-        timestep_embed_dim=p.net.timestep_embed_dim,
-        timestep_scale=p.net.timestep_scale,
         sampler=sampler_name(sampler),
         sampler_kwargs=json_ready(sampler.settings()),
     )
@@ -144,11 +146,13 @@ def write_folder(
 
     Args:
         actor: an :class:`~l1flow_rl.L1FlowActor` (not a best-of-N actor: its critics are not saved).
-        policy / encoder: the settings it was built with (the ``policy`` and ``encoder`` config groups,
-            or the keyword arguments given to :meth:`L1FlowActor.build`); horizons, sampler and
-            ``down_dims`` are read from the actor itself. Missing network settings take
-            :meth:`L1FlowActor.build`'s defaults, and the folder is rebuilt before it is published, so
-            settings that do not describe the actor are refused here, not at load time.
+        policy: the settings it was built with (the ``policy`` config group, or the keyword
+            arguments given to :meth:`L1FlowActor.build`); horizons, sampler and the network (its
+            name and settings: the ``network`` section) are read from the actor itself. The folder is
+            rebuilt before it is published, so settings that do not describe the actor are refused
+            here, not at load time.
+        encoder: the encoder settings it was built with (the ``encoder`` config group), read as
+            ``policy`` is.
         task: the task config it was trained on (``l1flow-rl eval`` on the folder uses it).
         train_config: the whole run config, stored as train_config.json for provenance.
         source: where the weights came from (checkpoint path, step, EMA or raw weights).
@@ -171,6 +175,8 @@ def write_folder(
         "format_version": FORMAT_VERSION,
         "library_version": _library_version(),
         "policy": _policy_description(actor, policy),
+        # read from the network itself, so it always rebuilds these weights
+        "network": {"name": network_name(p.net), **json_ready(p.net.settings())},
         "encoder": _plain(encoder) or {"name": "auto"},
         "observation": {
             "key": json_ready(actor.in_keys[0]),
@@ -264,14 +270,20 @@ def read_pretrained_config(path: str | os.PathLike) -> dict[str, Any]:
             "(a LeRobot policy folder, for instance, cannot be loaded here)"
         )
     version = config.get("format_version")
-    if version != FORMAT_VERSION:
+    if version not in READABLE_VERSIONS:
         raise PretrainedFolderError(
             f"{config_path}: format_version {version!r}, but this l1flow-rl ({_library_version()}) reads "
-            f"version {FORMAT_VERSION}; export the checkpoint again with this version"
+            f"version {' or '.join(map(str, READABLE_VERSIONS))}; export the checkpoint again with this "
+            "version"
         )
-    for section in ("policy", "encoder", "observation", "action"):
+    for section in ("policy", "encoder", "observation", "action", *(("network",) if version >= 2 else ())):
         if not isinstance(config.get(section), dict):
             raise PretrainedFolderError(f"{config_path}: section {section!r} is missing")
+    if version == 1:  # before the network section: the policy section's UNet, as version 1 read it
+        policy = config["policy"]
+        unet = {k: policy.get(k, default) for k, default in _V1_UNET_DEFAULTS.items()}
+        config["policy"] = {k: v for k, v in policy.items() if k not in unet}
+        config["network"] = {"name": "unet", **unet}
     for name in (WEIGHTS_FILE, NORMALIZER_FILE):
         if not (folder / name).is_file():
             raise PretrainedFolderError(f"{folder / name}: missing; the folder is incomplete")
@@ -292,6 +304,7 @@ def build_described(
             shapes,
             int(config["action"]["shape"][0]),
             config["encoder"],
+            config["network"],
             in_keys=[tuple(key) if isinstance(key, list) else key],
             out_keys=[tuple(out) if isinstance(out, list) else out],
         )

@@ -2,9 +2,10 @@
 
 The folder, in the shape LeRobot's users share policies in::
 
-    config.json               what to build: the policy and encoder settings (network, sampler,
-                              horizons), the observation entries and action with shapes and dtypes,
-                              the task it was trained on, the library version, where the weights came from
+    config.json               what to build: the policy, network and encoder settings (sampler,
+                              horizons; unet or mlp), the observation entries and action with shapes
+                              and dtypes, the task it was trained on, the library version, where the
+                              weights came from
     model.safetensors         the network and encoder weights (a checkpoint's EMA weights by default)
     normalizer.safetensors    the observation and action normalisers (scale, offset, mode per entry)
     train_config.json         the full config of the training run (provenance; not read to rebuild)
@@ -19,7 +20,7 @@ Example:
     >>> import tempfile, torch
     >>> from l1flow_rl import L1FlowActor
     >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32))
-    >>> folder = actor.save_pretrained(tempfile.mkdtemp() + "/policy", policy={"down_dims": [16, 32]})
+    >>> folder = actor.save_pretrained(tempfile.mkdtemp() + "/policy")
     >>> again = L1FlowActor.from_pretrained(folder)
     >>> obs, noise = torch.randn(1, 2, 5), torch.randn(1, 16, 2)
     >>> bool((again.policy(obs, noise=noise) == actor.policy(obs, noise=noise)).all())
@@ -78,7 +79,8 @@ def load_pretrained(path: str | os.PathLike, map_location: str | torch.device = 
 def load_pretrained_for_eval(
     path: str | os.PathLike, map_location: str | torch.device = "cpu"
 ) -> tuple[L1FlowActor, DictConfig]:
-    """(actor, a config with the ``task`` and ``policy`` it was trained with) for ``l1flow-rl eval``."""
+    """(actor, a config with the ``task``, ``policy`` and ``network`` it was trained with) for
+    ``l1flow-rl eval``."""
     config = read_pretrained_config(path)
     if not isinstance(config.get("task"), dict):
         raise PretrainedFolderError(
@@ -86,4 +88,6 @@ def load_pretrained_for_eval(
             "export it from a training checkpoint (l1flow-rl export checkpoint=CKPT out=DIR)"
         )
     actor = load_pretrained(path, map_location)
-    return actor, OmegaConf.create({"task": config["task"], "policy": config["policy"]})
+    return actor, OmegaConf.create(
+        {"task": config["task"], "policy": config["policy"], "network": config["network"]}
+    )

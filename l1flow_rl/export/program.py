@@ -18,8 +18,8 @@ needs ``onnxscript``) on the same module.
 
 Example:
     >>> import torch
-from tensordict.nn import TensorDictModule  # the actor's base: naming the actor would close a circle
     >>> from l1flow_rl import L1FlowActor
+    >>> from l1flow_rl.export.program import DeployablePolicy, example_inputs
     >>> actor = L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32)).eval()
     >>> program = torch.export.export(DeployablePolicy(actor), example_inputs(actor), strict=False)
     >>> obs, noise = torch.randn(1, 2, 5), torch.randn(1, 16, 2)

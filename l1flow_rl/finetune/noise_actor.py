@@ -10,7 +10,7 @@ Steering the noise moves the executed actions only as far as the sampler lets th
 (``benchmarks/results/noise_authority.json``: on PickCube the executed positions move ~5 % as much
 over noise draws as over states). A bounded residual on the executed window instead (Policy
 Decorator's) was measured and retired: validation fell from 0.20 to 0.06 (PickCube) and 0.22 to 0.08
-(Can) as its actor followed the critics' extrapolation (NOTES_finetune.md).
+(Can) as its actor followed the critics' extrapolation (docs/finetune.md).
 """
 
 from __future__ import annotations

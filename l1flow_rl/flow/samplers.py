@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import abc
 import inspect
+import itertools
+import math
 from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
@@ -16,16 +18,21 @@ import torch
 from torch import Tensor
 
 from l1flow_rl.flow.diffusion_schedule import DiffusionSchedule
+from l1flow_rl.flow.karras import KarrasPreconditioning, KarrasSchedule, heun_step, trajectory_jump
 from l1flow_rl.flow.time import velocity_from_sample
 
 __all__ = [
     "PREDICTIONS",
     "ChunkSampler",
+    "ConsistencySampler",
     "DDIMSampler",
     "DDPMSampler",
     "Denoiser",
     "DirectSampler",
+    "EDMHeunSampler",
     "EulerSampler",
+    "OneStepDDPMSampler",
+    "OneStepEDMSampler",
     "SamplerMismatchError",
     "TwoStepSampler",
     "VelocityEulerSampler",
@@ -41,6 +48,9 @@ __all__ = [
 #: what a network can be trained to predict: the clean chunk (L1 Flow), the flow velocity, the
 #: diffusion noise, or the chunk directly without noise or time (regression)
 PREDICTIONS = ("sample", "velocity", "epsilon", "direct")
+#: ... and the distillation family: EDM's preconditioned denoiser ("karras"), a consistency function
+#: ("consistency", Consistency Policy) and a one-step generator ("generator", OneDP)
+PREDICTIONS += ("karras", "consistency", "generator")
 
 #: ``denoise(x, t)``: one network evaluation on the current chunk ``x`` [B, H, A] at time ``t`` [B]
 #: (flow time in [0, 1], or the integer diffusion step; ``None`` for timestep-free regression).
@@ -237,6 +247,246 @@ class DDIMSampler(_EpsilonSampler):
         return x
 
 
+class _KarrasLevels(ChunkSampler):
+    """Noise levels on EDM's rho schedule and the preconditioning the network was trained under."""
+
+    boundary: ClassVar[bool] = False
+
+    def __init__(
+        self,
+        steps: int,
+        sigma_min: float,
+        sigma_max: float,
+        rho: float,
+        sigma_data: float,
+        clip_denoised: bool,
+    ) -> None:
+        if steps < 1:
+            raise ValueError(f"steps must be >= 1, got {steps}")
+        self.steps = int(steps)
+        self.sigma_min, self.sigma_max, self.rho = float(sigma_min), float(sigma_max), float(rho)
+        self.sigma_data = float(sigma_data)
+        self.clip_denoised = bool(clip_denoised)
+        self._schedule = KarrasSchedule(self.sigma_min, self.sigma_max, self.rho)
+        self._precond = KarrasPreconditioning(self.sigma_data, self.boundary, self.sigma_min)
+
+    @property
+    def schedule(self) -> KarrasSchedule:
+        return self._schedule
+
+    @property
+    def preconditioning(self) -> KarrasPreconditioning:
+        return self._precond
+
+    def training_signature(self) -> dict[str, Any]:
+        signature = {"prediction": self.prediction, "sigma_data": self.sigma_data}
+        if self.boundary:  # the boundary condition sits at sigma_min, so the net learnt that one
+            signature["sigma_min"] = self.sigma_min
+        return signature
+
+    def _denoiser(self, denoise: Denoiser) -> Callable[[Tensor, Tensor], Tensor]:
+        def clean(x: Tensor, sigma: Tensor) -> Tensor:
+            out = self._precond.denoise(denoise, x, sigma)
+            return out.clamp(-1.0, 1.0) if self.clip_denoised else out
+
+        return clean
+
+
+class EDMHeunSampler(_KarrasLevels):
+    """EDM's deterministic sampler (Karras et al. 2022, Algorithm 1 without churn): ``steps`` (N) Heun
+    steps over ``sigma_max -> ... -> sigma_min -> 0``, starting from ``sigma_max * noise``. Each step
+    costs 2 evaluations except the last one to sigma = 0, an Euler step: NFE = 2N - 1 (EDM's 35 NFE is
+    N = 18, 19 NFE is N = 10, 1 NFE is N = 1). ``clip_denoised`` clips each denoised estimate to the
+    action range, as Diffusion Policy clips its x0 (and Consistency Policy its EDM teacher)."""
+
+    prediction = "karras"
+
+    def __init__(
+        self,
+        steps: int = 18,
+        sigma_min: float = 0.002,
+        sigma_max: float = 80.0,
+        rho: float = 7.0,
+        sigma_data: float = 0.5,
+        clip_denoised: bool = True,
+    ) -> None:
+        super().__init__(steps, sigma_min, sigma_max, rho, sigma_data, clip_denoised)
+
+    @property
+    def nfe(self) -> int:
+        return 2 * self.steps - 1
+
+    def __call__(self, denoise, x_init, *, deterministic=False, generator=None):
+        levels = self.schedule.sigmas(self.steps, device=x_init.device).to(x_init.dtype)
+        levels = torch.cat([levels, levels.new_zeros(1)])
+        clean = self._denoiser(denoise)
+        x = x_init * levels[0]
+        for i, (sigma, next_sigma) in enumerate(itertools.pairwise(levels)):
+            x = heun_step(clean, x, sigma, next_sigma, to_zero=i == self.steps - 1)
+        return x
+
+
+class ConsistencySampler(_KarrasLevels):
+    """Consistency Policy's sampler: one jump of the consistency function from ``sigma_max * noise`` to
+    the clean chunk, then ``steps - 1`` times: renoise to an intermediate level and jump again (one NFE
+    each). The intermediate levels are bins ``ceil(k * bins / steps)`` of the ``bins``-level rho
+    schedule, k = 1 .. steps - 1: CP's bins 27 and 54 of 80 for 3 steps. Deterministic: no renoising
+    (zero noise throughout). ``trajectory``: the network was trained with CP's trajectory objective, so
+    each jump to sigma_min is CTM's, ``(sigma_min / sigma) x + (1 - sigma_min / sigma) f(x, sigma)``."""
+
+    prediction = "consistency"
+    boundary = True
+
+    def __init__(
+        self,
+        steps: int = 1,
+        bins: int = 80,
+        sigma_min: float = 0.02,
+        sigma_max: float = 80.0,
+        rho: float = 7.0,
+        sigma_data: float = 0.5,
+        clip_denoised: bool = True,
+        trajectory: bool = False,
+    ) -> None:
+        super().__init__(steps, sigma_min, sigma_max, rho, sigma_data, clip_denoised)
+        self.trajectory = bool(trajectory)
+        if bins < 2:
+            raise ValueError(f"bins must be >= 2, got {bins}")
+        if steps > bins:
+            raise ValueError(f"steps={steps} exceeds the {bins} bins of the schedule")
+        self.bins = int(bins)
+
+    @property
+    def nfe(self) -> int:
+        return self.steps
+
+    def bin_sigmas(self, *, device: torch.device | str = "cpu") -> Tensor:
+        """The ``bins`` training levels, sigma_max first (CP's discretisation)."""
+        return self.schedule.sigmas(self.bins, device=device)
+
+    def training_signature(self) -> dict[str, Any]:
+        return {**super().training_signature(), "trajectory": self.trajectory}
+
+    def _denoiser(self, denoise: Denoiser) -> Callable[[Tensor, Tensor], Tensor]:
+        if not self.trajectory:
+            return super()._denoiser(denoise)
+        stop = torch.tensor(self.sigma_min)
+
+        def jump(x: Tensor, sigma: Tensor) -> Tensor:
+            out = trajectory_jump(x, self._precond.denoise(denoise, x, sigma), sigma, stop.to(x))
+            return out.clamp(-1.0, 1.0) if self.clip_denoised else out
+
+        return jump
+
+    def chain_bins(self) -> list[int]:
+        """The bins the chain renoises to after the first jump."""
+        return [math.ceil(k * self.bins / self.steps) for k in range(1, self.steps)]
+
+    def __call__(self, denoise, x_init, *, deterministic=False, generator=None):
+        clean = self._denoiser(denoise)
+        levels = self.bin_sigmas(device=x_init.device).to(x_init.dtype)
+        out = clean(x_init * self.sigma_max, levels[0])
+        for b in self.chain_bins():
+            if deterministic:
+                noise = torch.zeros_like(out)
+            else:
+                noise = torch.randn(out.shape, device=out.device, dtype=out.dtype, generator=generator)
+            out = clean(out + levels[b] * noise, levels[b])
+        return out
+
+
+class _OneStep(ChunkSampler):
+    """OneDP's generator: one evaluation of a network in its teacher's parameterisation at one fixed
+    noise level, on a noise chunk z (``stochastic``, OneDP-S) or on zeros (OneDP-D, a deterministic
+    generator). ``teacher_prediction`` names the teacher it is distilled from."""
+
+    prediction = "generator"
+    teacher_prediction: ClassVar[str]
+
+    def __init__(self, stochastic: bool, clip_sample: bool) -> None:
+        self.stochastic = bool(stochastic)
+        self.clip_sample = bool(clip_sample)
+
+    @property
+    def nfe(self) -> int:
+        return 1
+
+    @abc.abstractmethod
+    def generate(self, denoise: Denoiser, z: Tensor) -> Tensor:
+        """The generator's chunk from ``z`` (unclipped: what training differentiates)."""
+
+    def training_signature(self) -> dict[str, Any]:
+        """The prediction, the teacher it reads the network as, and every setting but clipping."""
+        settings = {k: v for k, v in self.settings().items() if k != "clip_sample"}
+        return {"prediction": self.prediction, "teacher": self.teacher_prediction, **settings}
+
+    def latent(self, like: Tensor, generator: torch.Generator | None = None) -> Tensor:
+        """The generator's input for a chunk shaped like ``like``: noise, or zeros when deterministic."""
+        if not self.stochastic:
+            return torch.zeros_like(like)
+        return torch.randn(like.shape, device=like.device, dtype=like.dtype, generator=generator)
+
+    def __call__(self, denoise, x_init, *, deterministic=False, generator=None):
+        z = x_init if self.stochastic else torch.zeros_like(x_init)
+        out = self.generate(denoise, z)
+        return out.clamp(-1.0, 1.0) if self.clip_sample else out
+
+
+class OneStepEDMSampler(_OneStep):
+    """A generator distilled from an EDM teacher: D(sigma_init * z, sigma_init) under EDM's
+    preconditioning, so that with the teacher's weights it starts as the teacher's one-step denoiser.
+    ``sigma_init`` 1.7 is the EDM level of OneDP's DDPM start, step 65 of Diffusion Policy's 100-step
+    cosine schedule (sqrt((1 - a) / a) = 1.71 there), so both teachers' generators start equally deep."""
+
+    teacher_prediction = "karras"
+
+    def __init__(
+        self,
+        sigma_init: float = 1.7,
+        sigma_data: float = 0.5,
+        stochastic: bool = True,
+        clip_sample: bool = True,
+    ) -> None:
+        super().__init__(stochastic, clip_sample)
+        if not sigma_init > 0:
+            raise ValueError(f"sigma_init must be positive, got {sigma_init}")
+        self.sigma_init, self.sigma_data = float(sigma_init), float(sigma_data)
+        self._precond = KarrasPreconditioning(self.sigma_data)
+
+    def generate(self, denoise, z):
+        sigma = torch.full((z.shape[0],), self.sigma_init, device=z.device, dtype=z.dtype)
+        return self._precond.denoise(denoise, z * self.sigma_init, sigma)
+
+
+class OneStepDDPMSampler(_OneStep):
+    """A generator distilled from a DDPM teacher: its epsilon network read at the fixed step ``t_init``
+    (OneDP's 65 of 100) as ``x0 = (z - sqrt(1 - a) eps) / sqrt(a)``."""
+
+    teacher_prediction = "epsilon"
+
+    def __init__(
+        self,
+        t_init: int = 65,
+        num_train_timesteps: int = 100,
+        stochastic: bool = True,
+        clip_sample: bool = True,
+    ) -> None:
+        super().__init__(stochastic, clip_sample)
+        if not 0 <= t_init < num_train_timesteps:
+            raise ValueError(f"t_init must lie in [0, {num_train_timesteps}), got {t_init}")
+        self.t_init, self.num_train_timesteps = int(t_init), int(num_train_timesteps)
+        self._schedule = DiffusionSchedule(num_train_timesteps)
+
+    @property
+    def schedule(self) -> DiffusionSchedule:
+        return self._schedule
+
+    def generate(self, denoise, z):
+        a = self.schedule.alphas_cumprod[self.t_init].to(z.device, z.dtype)
+        eps = denoise(z, _full(z, self.t_init))
+        return (z - (1 - a).sqrt() * eps) / a.sqrt()
+
+
 _REGISTRY: dict[str, type[ChunkSampler]] = {
     "two_step": TwoStepSampler,
     "euler": EulerSampler,
@@ -244,6 +494,10 @@ _REGISTRY: dict[str, type[ChunkSampler]] = {
     "ddpm": DDPMSampler,
     "ddim": DDIMSampler,
     "direct": DirectSampler,
+    "edm_heun": EDMHeunSampler,
+    "edm_consistency": ConsistencySampler,
+    "onedp_edm": OneStepEDMSampler,
+    "onedp_ddpm": OneStepDDPMSampler,
 }
 
 

@@ -16,7 +16,7 @@ from l1flow_rl.export import folder as pretrained_folder
 from l1flow_rl.flow.samplers import ChunkSampler, TwoStepSampler, make_sampler
 from l1flow_rl.modules.policy import STATE_KEY, ChunkPolicy
 from l1flow_rl.networks.encoders import AUTO, ObservationEncoder, StateEncoder, make_encoder
-from l1flow_rl.networks.unet1d import ConditionalUnet1D
+from l1flow_rl.networks.registry import DEFAULT_NETWORK, make_network, network_config
 
 __all__ = ["L1FlowActor"]
 
@@ -61,8 +61,8 @@ class L1FlowActor(TensorDictModule):
         **kwargs: Any,
     ) -> TensorDictBase:
         """One key in, one key out. Written out because TensorDictModule's generic path wraps each
-        output with ``TensorDict.from_any``, whose import probe costs ~0.4 ms per call: 5 % of a
-        batch-1 chunk on CPU."""
+        output with ``TensorDict.from_any``, whose import probe on every call is a noticeable share
+        of a batch-1 chunk's time on a CPU."""
         if args:
             raise ValueError(
                 f"{type(self).__name__} takes one TensorDict, got {len(args)} more positional arguments"
@@ -116,25 +116,26 @@ class L1FlowActor(TensorDictModule):
         obs_horizon: int = 2,
         pred_horizon: int = 16,
         action_steps: int = 8,
-        down_dims: Sequence[int] = (256, 512, 1024),
-        timestep_embed_dim: int = 128,
-        kernel_size: int = 5,
-        n_groups: int = 8,
-        timestep_scale: float = 1.0,
+        network: str = DEFAULT_NETWORK,
         sampler: ChunkSampler | None = None,
         in_keys: Sequence[NestedKey] = ("observation",),
         out_keys: Sequence[NestedKey] = ("action_chunk",),
+        **network_settings: Any,
     ) -> L1FlowActor:
-        """Actor on Diffusion Policy's ConditionalUnet1D for any observation encoder."""
+        """Actor on the chunk denoiser ``network`` (``unet``: Diffusion Policy's ConditionalUnet1D;
+        ``mlp``: an MLP over the flattened chunk) for any observation encoder. ``network_settings`` are
+        the network's own (``unet``: ``down_dims``, ``timestep_embed_dim``, ``kernel_size``,
+        ``n_groups``, ``timestep_scale``; ``mlp``: ``hidden_dims``, ``timestep_embed_dim``,
+        ``timestep_scale``, ``activation``, ``layer_norm``, ``residual``); those not given take
+        :data:`~l1flow_rl.networks.registry.NETWORKS`' defaults (the UNet's: 256/512/1024, as the paper's)."""
         sampler = sampler if sampler is not None else TwoStepSampler(0.5)
-        net = ConditionalUnet1D(
-            action_dim,
+        net = make_network(
+            network,
+            action_dim=action_dim,
+            horizon=pred_horizon,
             global_cond_dim=obs_horizon * encoder.feature_dim,
-            down_dims=down_dims,
-            timestep_embed_dim=timestep_embed_dim if sampler.uses_timestep else 0,
-            kernel_size=kernel_size,
-            n_groups=n_groups,
-            timestep_scale=timestep_scale,
+            uses_timestep=sampler.uses_timestep,
+            **network_settings,
         )
         policy = ChunkPolicy(
             net,
@@ -154,12 +155,16 @@ class L1FlowActor(TensorDictModule):
         obs_shapes: Mapping[str, Sequence[int]],
         action_dim: int,
         encoder_cfg: DictConfig | Mapping | None = None,
+        network_cfg: DictConfig | Mapping | None = None,
         *,
         in_keys: Sequence[NestedKey] = ("observation",),
         out_keys: Sequence[NestedKey] = ("action_chunk",),
     ) -> L1FlowActor:
-        """Actor for the policy config, the encoder config (``None``: ``auto``) and the dataset's
-        observation entries (entry -> per-step shape: [D] flat, [3, H, W] an image).
+        """Actor for the policy config, the encoder config (``None``: ``auto``), the network config
+        (the ``network`` group; ``None``: the UNet whose settings a ``policy`` block from before that
+        group holds, the group's defaults filling the rest: ``network_config`` in
+        :mod:`l1flow_rl.networks.registry`) and the dataset's observation entries (entry -> per-step
+        shape: [D] flat, [3, H, W] an image).
 
         The encoder comes from the encoder registry (``l1flow_rl.networks.encoders``): ``auto`` takes
         ``resnet18_gn`` when an entry is an image and ``state`` otherwise; a state-only encoder on
@@ -168,6 +173,7 @@ class L1FlowActor(TensorDictModule):
         p = _plain(policy_cfg)
         e = _plain(encoder_cfg) if encoder_cfg is not None else {}
         name = e.pop("name", AUTO)
+        net = network_config(p, None if network_cfg is None else _plain(network_cfg))
         encoder = make_encoder(name, {k: tuple(s) for k, s in obs_shapes.items()}, e)
         return cls.build(
             encoder,
@@ -175,14 +181,11 @@ class L1FlowActor(TensorDictModule):
             obs_horizon=p["obs_horizon"],
             pred_horizon=p["pred_horizon"],
             action_steps=p["action_steps"],
-            down_dims=tuple(p["down_dims"]),
-            timestep_embed_dim=p["timestep_embed_dim"],
-            kernel_size=p["kernel_size"],
-            n_groups=p["n_groups"],
-            timestep_scale=p.get("timestep_scale", 1.0),  # checkpoints from before the field: raw t
             sampler=make_sampler(p["sampler"], **p.get("sampler_kwargs", {})),
             in_keys=in_keys,
             out_keys=out_keys,
+            network=net.pop("name"),
+            **net,
         )
 
     @classmethod
@@ -193,15 +196,23 @@ class L1FlowActor(TensorDictModule):
         obs_horizon: int = 2,
         pred_horizon: int = 16,
         action_steps: int = 8,
-        down_dims: Sequence[int] = (256, 512, 1024),
+        down_dims: Sequence[int] | None = None,
         **kwargs,
     ) -> L1FlowActor:
         """Actor for flat state observations.
 
         ``obs_dim`` is an int for a tensor observation [*B, To, D], or a mapping entry -> dim
         when the observation is a TensorDict of several flat entries. Other keyword arguments
-        go to :meth:`build` (``sampler``, ``timestep_embed_dim``, ``in_keys``, ...).
+        go to :meth:`build` (``network``, its settings, ``sampler``, ``in_keys``, ...): the default
+        is the UNet (``down_dims`` None: 256/512/1024), ``network="mlp", hidden_dims=(256, 256)`` an MLP.
+
+        Example:
+            >>> mlp = L1FlowActor.for_state(obs_dim=5, action_dim=2, network="mlp", hidden_dims=(64, 64))
+            >>> type(mlp.policy.net).__name__, mlp.policy.net.hidden_dims
+            ('MLPDenoiser', (64, 64))
         """
+        if down_dims is not None:
+            kwargs["down_dims"] = down_dims
         dims = {STATE_KEY: int(obs_dim)} if isinstance(obs_dim, int) else dict(obs_dim)
         return cls.build(
             StateEncoder(dims),
@@ -209,7 +220,6 @@ class L1FlowActor(TensorDictModule):
             obs_horizon=obs_horizon,
             pred_horizon=pred_horizon,
             action_steps=action_steps,
-            down_dims=down_dims,
             **kwargs,
         )
 

@@ -15,7 +15,6 @@ from l1flow_rl.flow.samplers import ChunkSampler, check_sampler_fits
 from l1flow_rl.modules.normalizer import Normalizer, NormalizerDict
 from l1flow_rl.modules.observations import STATE_KEY, read_observations
 from l1flow_rl.networks.encoders import ObservationEncoder
-from l1flow_rl.networks.unet1d import ConditionalUnet1D
 
 __all__ = ["STATE_KEY", "ChunkPolicy"]
 
@@ -36,7 +35,8 @@ class ChunkPolicy(nn.Module):
     the state_dict so a saved policy acts in the environment's units.
 
     Args:
-        net: the chunk denoiser (``ConditionalUnet1D``).
+        net: the chunk denoiser (``ConditionalUnet1D`` or ``MLPDenoiser``, see
+            :mod:`l1flow_rl.networks.registry`).
         encoder: observation entries [N, To, ...] -> features [N, To, F].
         sampler: integrates the network into a chunk; its ``prediction`` must match the loss.
         obs_horizon: To. pred_horizon: H. action_steps: K, the executable window.
@@ -44,7 +44,7 @@ class ChunkPolicy(nn.Module):
 
     def __init__(
         self,
-        net: ConditionalUnet1D,
+        net: nn.Module,
         encoder: ObservationEncoder,
         sampler: ChunkSampler,
         *,
@@ -69,6 +69,11 @@ class ChunkPolicy(nn.Module):
             raise ValueError(
                 f"net.global_cond_dim={net.global_cond_dim} must equal obs_horizon * encoder.feature_dim "
                 f"= {obs_horizon} * {encoder.feature_dim}"
+            )
+        built_for = getattr(net, "horizon", None)  # a network over the flattened chunk has one length
+        if built_for is not None and built_for != pred_horizon:
+            raise ValueError(
+                f"pred_horizon={pred_horizon}, but the network was built for chunks of {built_for}"
             )
         if pred_horizon % net.horizon_multiple:
             raise ValueError(

@@ -11,6 +11,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -67,7 +68,8 @@ class ConditionalUnet1D(nn.Module):
         down_dims: channel widths per level (Diffusion Policy: 256/512/1024; ManiSkill state: 64/128/256).
         timestep_embed_dim: size of the sinusoidal timestep embedding; 0 builds a timestep-free
             network (plain regression), whose ``forward`` must get ``t=None``.
-        kernel_size, n_groups: conv kernel and GroupNorm groups (5 and 8 in Diffusion Policy).
+        kernel_size: the conv kernel (5 in Diffusion Policy).
+        n_groups: the GroupNorm groups (8 in Diffusion Policy).
         timestep_scale: t is multiplied by it before the sinusoidal embedding. 1 (default) feeds the
             raw flow time in [0, 1], as the official L1 Flow code does; there the embedding's fastest
             feature turns by one radian over the whole path, so the network barely resolves t. 1000
@@ -97,7 +99,7 @@ class ConditionalUnet1D(nn.Module):
         if bad:
             raise ValueError(f"down_dims {down_dims}: every width must be divisible by n_groups={n_groups}")
         self.action_dim, self.global_cond_dim, self.down_dims = action_dim, global_cond_dim, down_dims
-        self.timestep_embed_dim = timestep_embed_dim
+        self.timestep_embed_dim, self.kernel_size, self.n_groups = timestep_embed_dim, kernel_size, n_groups
         if timestep_embed_dim:
             d = timestep_embed_dim
             self.time_mlp: nn.Module | None = nn.Sequential(
@@ -129,6 +131,16 @@ class ConditionalUnet1D(nn.Module):
             nn.Conv1d(down_dims[0], action_dim, 1),
         )
         self.horizon_multiple = 2 ** (len(down_dims) - 1)
+
+    def settings(self) -> dict[str, Any]:
+        """The constructor's settings beyond the data's sizes: what rebuilds this network."""
+        return {
+            "down_dims": list(self.down_dims),
+            "timestep_embed_dim": self.timestep_embed_dim,
+            "timestep_scale": self.timestep_scale,
+            "kernel_size": self.kernel_size,
+            "n_groups": self.n_groups,
+        }
 
     def forward(self, x: Tensor, t: Tensor | None, global_cond: Tensor | None = None) -> Tensor:
         """x: [B, H, A]; t: [B] (or None when built without a timestep); global_cond: [B, C]."""

@@ -183,11 +183,29 @@ class ChunkLossBase(LossModule):
         mask = valid.unsqueeze(-1).expand_as(value)
         return torch.where(mask, value, torch.zeros_like(value)).sum() / mask.sum().clamp_min(1)
 
+    def _chunk_loss(
+        self, obs: TensorDictBase, cond: Tensor, x1: Tensor, valid: Tensor | None
+    ) -> tuple[Tensor, dict[str, Tensor]]:
+        """The element-wise loss with the flat observation at hand too (a teacher encodes it itself)."""
+        return self._elementwise_loss(cond, x1, valid)
+
+    # -- what a loss trains and keeps beyond the actor (distillation: a score network, a target) --
+    def extra_parameters(self) -> list[torch.nn.Parameter]:
+        """Parameters the optimiser trains beside the actor's (none for behaviour cloning)."""
+        return []
+
+    def training_state(self) -> dict[str, Tensor]:
+        """What a resumed run needs of this loss beyond the actor and the optimiser (tensors only)."""
+        return {}
+
+    def load_training_state(self, state: dict[str, Tensor]) -> None:
+        """Restore :meth:`training_state`."""
+
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         obs, x1, valid, batch = self._read_batch(tensordict)
         with self.actor_network_params.to_module(self.actor_network):
             cond = self.policy.encode(obs)
-            err, diagnostics = self._elementwise_loss(cond, x1, valid)
+            err, diagnostics = self._chunk_loss(obs, cond, x1, valid)
         mask = None if valid is None else valid.unsqueeze(-1).expand_as(err)
         if self.reduction == "none":
             loss = err if mask is None else torch.where(mask, err, torch.zeros_like(err))

@@ -7,7 +7,7 @@ here.
 
 Example:
     >>> loss_names()
-    ['diffusion', 'flow_matching', 'l1flow', 'regression']
+    ['consistency', 'diffusion', 'edm', 'flow_matching', 'l1flow', 'onedp_d', 'onedp_s', 'regression']
     >>> loss_problems("l1flow", {"timestep": "mixed"})  # doctest: +ELLIPSIS
     ["policy.loss_kwargs.timestep: loss 'l1flow' (L1FlowLoss) takes no such argument; it takes [...]"]
 """
@@ -21,9 +21,13 @@ from typing import Any
 from torchrl.objectives import LossModule
 
 from l1flow_rl.flow.timesteps import make_timesteps
+from l1flow_rl.objectives.consistency import ConsistencyLoss
 from l1flow_rl.objectives.diffusion import DiffusionLoss
+from l1flow_rl.objectives.edm import EDMLoss
 from l1flow_rl.objectives.flow_matching import FlowMatchingLoss
 from l1flow_rl.objectives.l1flow import L1FlowLoss
+from l1flow_rl.objectives.onedp_d import OneDPDLoss
+from l1flow_rl.objectives.onedp_s import OneDPSLoss
 from l1flow_rl.objectives.regression import RegressionLoss
 
 __all__ = ["LOSSES", "get_loss", "loss_names", "loss_problems", "register_loss"]
@@ -55,6 +59,7 @@ def get_loss(name: str) -> type[LossModule]:
 def _accepted_kwargs(cls: type) -> list[str]:
     params = inspect.signature(cls.__init__).parameters.values()
     skip = {"self", "actor_network"}
+    skip.add("teacher")  # a distillation loss's teacher comes from the top-level teacher=, not loss_kwargs
     kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
     return [p.name for p in params if p.name not in skip and p.kind in kinds]
 
@@ -83,3 +88,7 @@ register_loss("l1flow", L1FlowLoss)
 register_loss("flow_matching", FlowMatchingLoss)
 register_loss("diffusion", DiffusionLoss)
 register_loss("regression", RegressionLoss)
+register_loss("edm", EDMLoss)
+register_loss("consistency", ConsistencyLoss)
+register_loss("onedp_d", OneDPDLoss)
+register_loss("onedp_s", OneDPSLoss)

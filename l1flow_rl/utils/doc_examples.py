@@ -18,6 +18,7 @@ __all__ = [
     "TRANSITIONS",
     "add_example",
     "chunk_loss_example",
+    "distillation_example",
 ]
 
 T = TypeVar("T")
@@ -82,6 +83,32 @@ def chunk_loss_example(sampler: str) -> Callable[[T], T]:
             '>>> td = TensorDict({"observation": torch.randn(4, 2, 5),\n'
             '...                  "action_chunk": torch.rand(4, 16, 2) * 2 - 1}, batch_size=[4])\n'
             f'>>> {name}(actor)(td)["{loss_key}"].backward()\n'
+        )(cls)
+
+    return decorate
+
+
+def distillation_example(teacher: str, student: str, nfe: int, *, scale: float = 1000.0) -> Callable[[T], T]:
+    """``add_example`` for a distillation loss: a teacher sampling by ``teacher`` and a student by
+    ``student`` (:mod:`l1flow_rl.flow` constructor calls) on one network shape with time scale
+    ``scale``; compute the loss on a batch, backward, and show the student's NFE (``nfe``)."""
+
+    def decorate(cls: T) -> T:
+        name, loss_key = cls.__name__, cls.loss_name  # type: ignore[attr-defined]
+        classes = sorted({teacher.partition("(")[0], student.partition("(")[0]})
+        return add_example(
+            ">>> import torch\n"
+            ">>> from tensordict import TensorDict\n"
+            f">>> from l1flow_rl import L1FlowActor, {name}\n"
+            f">>> from l1flow_rl.flow import {', '.join(classes)}\n"
+            ">>> make = lambda sampler: L1FlowActor.for_state(obs_dim=5, action_dim=2, down_dims=(16, 32),\n"
+            f"...                                              sampler=sampler, timestep_scale={scale})\n"
+            f">>> loss_fn = {name}(make({student}), teacher=make({teacher}))\n"
+            '>>> td = TensorDict({"observation": torch.randn(4, 2, 5),\n'
+            '...                  "action_chunk": torch.rand(4, 16, 2) * 2 - 1}, batch_size=[4])\n'
+            f'>>> loss_fn(td)["{loss_key}"].backward()\n'
+            ">>> loss_fn.policy.sampler.nfe\n"
+            f"{nfe}\n"
         )(cls)
 
     return decorate

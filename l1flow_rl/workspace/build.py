@@ -1,5 +1,5 @@
-"""Turn validated :class:`~l1flow_rl.config.PolicyConfig` and
-:class:`~l1flow_rl.config.EncoderConfig` into an actor, and the policy config into its loss."""
+"""Turn validated :class:`~l1flow_rl.config.PolicyConfig`, :class:`~l1flow_rl.config.EncoderConfig` and
+:class:`~l1flow_rl.config.NetworkConfig` into an actor, and the policy config into its loss."""
 
 from __future__ import annotations
 
@@ -23,12 +23,16 @@ def build_actor(
     obs_shapes: Mapping[str, tuple[int, ...]],
     action_dim: int,
     encoder_cfg: DictConfig | Mapping | None = None,
+    network_cfg: DictConfig | Mapping | None = None,
 ) -> L1FlowActor:
-    """Actor for the policy config, the encoder config (``None``: ``auto``) and the dataset's
-    observation entries: :meth:`L1FlowActor.from_config <l1flow_rl.L1FlowActor.from_config>`."""
-    return L1FlowActor.from_config(policy_cfg, obs_shapes, action_dim, encoder_cfg)
+    """Actor for the policy config, the encoder config (``None``: ``auto``), the network config (the
+    ``network`` group) and the dataset's observation entries:
+    :meth:`L1FlowActor.from_config <l1flow_rl.L1FlowActor.from_config>`."""
+    return L1FlowActor.from_config(policy_cfg, obs_shapes, action_dim, encoder_cfg, network_cfg)
 
 
-def build_loss(actor: L1FlowActor, policy_cfg: DictConfig | Mapping) -> LossModule:
+def build_loss(actor: L1FlowActor, policy_cfg: DictConfig | Mapping, **extra) -> LossModule:
+    """The policy config's loss on ``actor``; ``extra`` are arguments that do not come from
+    ``policy.loss_kwargs`` (a distillation loss's ``teacher``)."""
     p = _plain(policy_cfg)
-    return get_loss(p["loss"])(actor, **p.get("loss_kwargs", {}))
+    return get_loss(p["loss"])(actor, **p.get("loss_kwargs", {}), **extra)

@@ -20,6 +20,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
+from l1flow_rl.config.network import NetworkConfig, upgrade_saved_config
 from l1flow_rl.errors import CheckpointMismatchError, CheckpointReadError
 from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
@@ -53,14 +54,10 @@ _IDENTITY_FIELDS = (
     "policy.obs_horizon",
     "policy.pred_horizon",
     "policy.action_steps",
-    "policy.down_dims",
-    "policy.timestep_embed_dim",
-    "policy.kernel_size",
-    "policy.n_groups",
-    "policy.timestep_scale",
+    *(f"network.{f}" for f in NetworkConfig.__dataclass_fields__),
 )
 #: identity fields added after checkpoints were made: what a checkpoint without one was built with
-_IDENTITY_DEFAULTS = {"policy.timestep_scale": 1.0}
+_IDENTITY_DEFAULTS = {"network.timestep_scale": 1.0}
 
 
 #: Config fields a resumed run of any job may set differently from the run it continues (dotted,
@@ -116,8 +113,11 @@ def save_checkpoint(path: str | Path, state: Mapping[str, Any]) -> Path:
     return path
 
 
-def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    """Load with ``weights_only=True``: tensors and builtins only, never arbitrary code.
+def load_checkpoint(
+    path: str | Path, map_location: str | torch.device = "cpu", *, mmap: bool = False
+) -> dict[str, Any]:
+    """Load with ``weights_only=True``: tensors and builtins only, never arbitrary code. ``mmap``: map
+    the tensors instead of reading them (a config check that reads only the recorded config).
 
     A missing, truncated or foreign file raises :class:`~l1flow_rl.errors.CheckpointReadError`
     naming the file. A file holding other Python objects is refused without torch's advice to
@@ -129,7 +129,7 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
     if not path.is_file():
         raise CheckpointNotFoundError(f"checkpoint {str(path)!r} does not exist")
     try:
-        state = torch.load(path, map_location=map_location, weights_only=True)
+        state = torch.load(path, map_location=map_location, weights_only=True, mmap=mmap)
     except pickle.UnpicklingError as err:  # objects beyond tensors and builtins: not ours
         found = re.search(r"GLOBAL (\S+)", str(err))
         what = f" (it holds {found.group(1)})" if found else ""
@@ -150,6 +150,9 @@ def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") 
             raise CheckpointReadError(
                 f"checkpoint {str(path)!r} has no {key!r} entry; is it an l1flow-rl checkpoint?"
             )
+    for key in ("config", "run_config"):  # one from before the network group: its UNet as network
+        if isinstance(state.get(key), dict):
+            state[key] = upgrade_saved_config(state[key])
     return state
 
 
@@ -195,8 +198,10 @@ def _select(cfg: Mapping[str, Any], dotted: str) -> Any:
 def check_compatible(
     saved_cfg: Mapping[str, Any], cfg: DictConfig | Mapping[str, Any], path: str = ""
 ) -> None:
-    """Raise :class:`CheckpointMismatchError` listing every identity field that differs."""
+    """Raise :class:`CheckpointMismatchError` listing every identity field that differs (a config
+    from before the network group is read in the current layout first)."""
     current = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+    saved_cfg, current = upgrade_saved_config(dict(saved_cfg)), upgrade_saved_config(dict(current))
 
     def value(c: Mapping[str, Any], f: str) -> Any:
         found = _select(c, f)
@@ -270,7 +275,7 @@ def load_actor(
     state = load_checkpoint(path, map_location)
     cfg = OmegaConf.create(state["config"])
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
-    actor = build_actor(cfg.policy, shapes, int(state["action_dim"]), cfg.get("encoder"))
+    actor = build_actor(cfg.policy, shapes, int(state["action_dim"]), cfg.get("encoder"), cfg.get("network"))
     finetune = cfg.policy.get("finetune")
     if finetune:  # a fine-tuned policy: the algorithm's acting module around the flow
         actor = FINETUNE_ALGORITHMS[finetune.algorithm].build(actor, finetune).actor

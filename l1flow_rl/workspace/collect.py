@@ -126,7 +126,7 @@ class OnlineCollector:
                 total_frames=-1,
                 reset_at_each_iter=True,
                 exploration_type=ExplorationType.RANDOM,
-                # measured on an H200 (benchmarks/run_records/device14): an env made on the GPU failed the
+                # measured on an H200: an env made on the GPU failed the
                 # collector's first call ("indices should be either on cpu or on the same device")
                 env_device="cpu",
                 policy_device=device,

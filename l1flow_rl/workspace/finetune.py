@@ -186,6 +186,8 @@ def run_finetune(cfg: DictConfig) -> int:
     _check_task(bc_cfg, cfg, str(cfg.checkpoint))
     with open_dict(cfg):  # the network is the checkpoint's
         cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)
+        if bc_cfg.get("network") is not None:
+            cfg.network = OmegaConf.merge(cfg.network, bc_cfg.network)
         if bc_cfg.get("encoder") is not None and "encoder" in cfg:
             cfg.encoder = OmegaConf.merge(cfg.encoder, bc_cfg.encoder)
     given_data = [*overrides_under("demos"), *overrides_under("data")]

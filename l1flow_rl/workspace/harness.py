@@ -152,6 +152,8 @@ class Run:
         self.evals: list[dict[str, Any]] = []
         #: other lists the job keeps (e.g. collection rounds): checkpointed and in history.json
         self.records: dict[str, list[Any]] = {}
+        #: entries the job adds to eval.json and summary.json (e.g. its training ledger)
+        self.report_extra: dict[str, Any] = {}
         self.best = -math.inf
         self._validates = cfg.eval.episodes > 0  # the same on every rank (the evaluator: rank 0 only)
         self.resumed: dict[str, Any] | None = None
@@ -474,8 +476,11 @@ class Run:
                 chosen = load(self.best_path)
             result = ev(chosen, step, video_dir=self.run_dir / "videos", split="test")
             ev.close()
-            self.evals.append(ev.history_row(result))
+            # the test row names the weights it scored (not the run's last step) and their interval
+            ci95 = {k: list(v) for k, v in result.get("ci95", {}).items() if k.startswith("success")}
+            self.evals.append({**ev.history_row(result), "weights_step": selection["step"], "ci95": ci95})
             result = {**result, "selection": selection, "sampler": sampler_record(chosen)}
+            result.update(self.report_extra)
             (self.run_dir / "eval.json").write_text(json.dumps(result, indent=2))
             summary.update(
                 success_once=result["success_once"],
@@ -483,6 +488,7 @@ class Run:
                 eval_episodes=result["episodes"],
                 chunk_latency_ms_median=result.get("latency_ms_median"),
             )
+        summary.update(self.report_extra)
         # Seconds over every invocation of the run; CPU is the budget when runs share the machine.
         summary.update(self.clock.summary())
         summary["machine"] = machine_info(self.device)  # threads and load as this invocation ended

@@ -39,20 +39,37 @@ def save_plots(
         written.append(run_dir / "loss.png")
     if evals:
         fig, ax = plt.subplots(figsize=(6, 3.5))
-        steps = [e["step"] for e in evals]
-        ax.plot(steps, [e["success_once"] for e in evals], "o-", label="success_once")
-        ax.plot(steps, [e["success_at_end"] for e in evals], "s--", label="success_at_end")
-        ax.set_ylim(-0.05, 1.05)
-        ax.set_xlabel("step")
-        ax.set_ylabel("success rate")
-        ax.legend()
-        ax.grid(alpha=0.3)
-        ax.set_title(f"evaluation ({evals[-1].get('episodes', '?')} episodes)")
+        _plot_success(ax, evals)
         fig.tight_layout()
         fig.savefig(run_dir / "success.png", dpi=120)
         plt.close(fig)
         written.append(run_dir / "success.png")
     return written
+
+
+def _plot_success(ax: Any, evals: Sequence[Mapping[str, Any]]) -> None:
+    """Validation as curves (labelled with its episode count), the test as one point per metric at
+    the step of the weights it scored, with its 95 % interval: the two splits answer different
+    questions (which checkpoint to ship; how good the shipped one is) and use different seeds."""
+    val = [e for e in evals if e.get("split", "val") == "val"]
+    test = [e for e in evals if e.get("split") == "test"]
+    for key, style in (("success_once", "o-"), ("success_at_end", "s--")):
+        if val:
+            label = f"validation {key} ({val[-1].get('episodes', '?')} episodes)"
+            ax.plot([e["step"] for e in val], [e[key] for e in val], style, lw=1, label=label)
+    for row in test:
+        step = row.get("weights_step", row["step"])
+        for key, marker, color in (("success_once", "*", "tab:red"), ("success_at_end", "P", "tab:purple")):
+            low, high = row.get("ci95", {}).get(key, (row[key], row[key]))
+            err = [[row[key] - low], [high - row[key]]]
+            label = f"test {key} ({row.get('episodes', '?')} episodes, weights of step {step})"
+            ax.errorbar([step], [row[key]], yerr=err, fmt=marker, color=color, ms=9, capsize=4, label=label)
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_xlabel("step")
+    ax.set_ylabel("success rate")
+    ax.legend(fontsize=7)
+    ax.grid(alpha=0.3)
+    ax.set_title("success: validation, and the test of the chosen weights", fontsize=10)
 
 
 def save_history(

@@ -21,6 +21,7 @@ from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
 from l1flow_rl.workspace.dataset import load_task_episodes, make_train_buffer, resolve_dataset
 from l1flow_rl.workspace.distributed import init_distributed, resolve_device, run_on_every_rank, run_on_rank0
 from l1flow_rl.workspace.harness import Run
+from l1flow_rl.workspace.teacher import load_teacher, own_stage, total_steps
 from l1flow_rl.workspace.trainer import Trainer
 
 __all__ = ["TRAIN_MAY_CHANGE", "resolve_device", "run_train"]
@@ -65,23 +66,28 @@ def run_train(cfg: DictConfig) -> int:
         log_every=tcfg.log_every,
         checkpoint_every=tcfg.checkpoint_every,
         eval_every=tcfg.eval_every,
-        # of equally validated checkpoints the latest: one Can run's steps 500 / 1,500 / 2,000 test
-        # 0.09 / 0.31 / 0.31 (100 episodes), and a 20-episode validation had tied 500 with 1,500
+        # of equally validated checkpoints the latest: a short validation can tie an under-trained
+        # early checkpoint with later ones that test far better, and ties are common at 20 episodes
         ties="latest",
     )
     with harness as run:
         with run.phase("demo"):
             dataset = run_on_rank0(lambda: resolve_dataset(cfg), "making or finding the demonstrations")
 
+        # A distillation run's frozen teacher (the config check has vetted teacher=), and the stages
+        # its weights went through: the run's ledger starts with them.
+        teacher, ledger = (None, []) if not cfg.get("teacher") else load_teacher(cfg.teacher, device)
+
         def setup() -> tuple[Any, ...]:
             episodes = load_task_episodes(cfg, dataset)
             buffer = make_train_buffer(cfg, episodes, seed=cfg.seed + rank)
             action_dim = int(episodes["action"].shape[-1])
             obs_shapes = _obs_shapes(episodes)
-            actor = build_actor(pcfg, obs_shapes, action_dim, cfg.get("encoder"))
+            actor = build_actor(pcfg, obs_shapes, action_dim, cfg.get("encoder"), cfg.get("network"))
             fit_normalizers(actor.policy, episodes, mode=pcfg.normalizer, obs_mode=pcfg.obs_normalizer)
             actor.to(device)
-            return buffer, action_dim, obs_shapes, actor, build_loss(actor, pcfg)
+            extra = {} if teacher is None else {"teacher": teacher}
+            return buffer, action_dim, obs_shapes, actor, build_loss(actor, pcfg, **extra)
 
         buffer, action_dim, obs_shapes, actor, loss_fn = run_on_every_rank(
             setup, "loading the demonstrations and building the model"
@@ -108,6 +114,7 @@ def run_train(cfg: DictConfig) -> int:
                 "action_dim": action_dim,
                 "dataset": str(dataset),
                 "sampler_rng": get_buffer_rng(buffer),
+                "ledger": [*ledger, own_stage(pcfg.name, trainer.step, tcfg.batch_size)],
             }
 
         def load(saved: dict[str, Any]) -> None:
@@ -120,5 +127,8 @@ def run_train(cfg: DictConfig) -> int:
                 metrics = trainer.train_step(buffer.sample().to(device))
                 run.step_done(trainer.step, metrics, trainer.ema_actor, last=trainer.step == tcfg.steps)
         summary = {"task": cfg.task.name, "policy": pcfg.name, "steps": trainer.step, "demos": cfg.demos.num}
+        stages = [*ledger, own_stage(pcfg.name, trainer.step, tcfg.batch_size)]
+        run.records["ledger"] = stages  # history.json (and the final checkpoints)
+        run.report_extra.update(ledger=stages, total_steps_with_teacher=total_steps(stages))
         run.finish(trainer.ema_actor, summary)
     return 0

@@ -93,6 +93,10 @@ class Trainer:
             # 2.11 / H100 a dynamic GroupNorm-backward kernel failed with "misaligned address".
             actor.policy.net.compile(dynamic=False)
         params = [p for p in actor.parameters() if p.requires_grad]
+        # A loss may train networks of its own beside the actor (OneDP-S's score network).
+        extra = getattr(loss_fn, "extra_parameters", list)()
+        params += [p for p in extra if p.requires_grad]
+        self._params = params
         # The fused kernel (one launch for all parameters) where it is the fast path; elsewhere
         # torch's default, so CPU runs stay bit-for-bit what they were.
         fused = True if params and params[0].device.type == "cuda" else None
@@ -128,9 +132,9 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if self.grad_clip > 0:
-            grad_norm = torch.nn.utils.clip_grad_norm_(self.actor.parameters(), self.grad_clip)
+            grad_norm = torch.nn.utils.clip_grad_norm_(self._params, self.grad_clip)
         else:  # the norm only: scaling every gradient by 1.0 would be a wasted pass
-            grads = [p.grad for p in self.actor.parameters() if p.grad is not None]
+            grads = [p.grad for p in self._params if p.grad is not None]
             grad_norm = torch.nn.utils.get_total_norm(grads)
         self.optimizer.step()
         self.scheduler.step()
@@ -146,7 +150,7 @@ class Trainer:
         return metrics
 
     def state_dict(self) -> dict[str, Any]:
-        return {
+        state = {
             "model": self.actor.state_dict(),
             "ema": self.ema_actor.state_dict(),
             "ema_n_averaged": self.ema.n_averaged.clone(),
@@ -154,6 +158,10 @@ class Trainer:
             "scheduler": self.scheduler.state_dict(),
             "step": self.step,
         }
+        loss_state = getattr(self.loss_fn, "training_state", dict)()
+        if loss_state:  # a distillation loss's target or score network
+            state["loss_state"] = loss_state
+        return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         load_state_into(self.actor, state["model"])
@@ -162,3 +170,5 @@ class Trainer:
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
+        if "loss_state" in state:
+            self.loss_fn.load_training_state(state["loss_state"])

@@ -247,7 +247,7 @@ class _Generator:
         shutil.rmtree(work, ignore_errors=True)
         work.mkdir(parents=True)
         args = [*self._worker_args(work), "--first-seed", str(first), "--num-seeds", str(count)]
-        # per-attempt limit plus a replay allowance of 60 s per episode (rgb replays run ~20 steps/s)
+        # per-attempt limit plus a replay allowance of 60 s per episode (an rgb replay renders every step)
         deadline = WORKER_START_S + count * (self.attempt_timeout + 60)
         worker = _Worker(args, work / "worker.log", deadline, bar, self.stop)
         if worker.stopped:
@@ -353,7 +353,7 @@ def _batch_sizes(
 ) -> list[int]:
     """Seeds for the next round, split into up to ``workers`` batches of at least MIN_BATCH seeds."""
     good = sum(ok for _, ok, _ in outcomes)
-    # success-rate estimate with a prior of 0.9 worth 2 seeds: most solutions succeed (PushCube 0.95)
+    # success-rate estimate with a prior of 0.9 worth 2 seeds: most solutions succeed
     # and each extra seed costs a replay, while low rates correct themselves after one round
     rate = (good + 1.8) / (len(outcomes) + 2)
     total = max(1, min(math.ceil(need / max(rate, 0.05) * 1.1), failures_left, MAX_BATCH * workers))

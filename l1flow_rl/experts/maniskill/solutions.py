@@ -2,8 +2,8 @@
 
 PushCube: ManiSkill's solution (``mani_skill.examples.motionplanning.panda.solutions.push_cube``)
 stops pushing with the cube 8.4-9.6 cm from the goal's centre (100 demos), within a few mm of the
-10 cm success radius. A policy imitating it stops about there too, and its failures end 0.1-1.6 cm
-short of the radius (benchmarks/results/main_job_failures.json). Ours pushes 5 cm further, so that
+10 cm success radius. A policy imitating it stops about there too, and its failures end just
+short of the radius. Ours pushes 5 cm further, so that
 the cube ends well inside the goal region.
 
 :data:`SOLUTION_TAGS` names each replaced solution; the demonstration cache keeps their plans apart
@@ -22,8 +22,8 @@ SOLUTION_TAGS = {"PushCube-v1": "push5cm"}
 #: how much further than ManiSkill's solution ours pushes the cube (metres)
 PUSH_FURTHER = 0.05
 #: PushCube plans longer than this are refused (counted as failed seeds): with the deeper goal the
-#: screw motion takes 250-1000 steps on ~10 % of seeds (a wrist reconfiguration), far beyond the
-#: task's 150-step limit, while the rest take 70-150
+#: screw motion on a few seeds goes through a wrist reconfiguration that takes it far beyond the
+#: task's 150-step limit, while the rest fit in it
 MAX_PUSH_PLAN_STEPS = 150
 
 

@@ -56,7 +56,7 @@ def _spawn_pool(workers: int) -> multiprocessing.pool.Pool:
     (kept across exec, and Python leaves an ignored SIGINT alone), which also covers a worker still
     importing when Ctrl-C comes. ``pool.terminate()`` ends the workers with SIGTERM and then joins
     them without a timeout, so a worker must not inherit an ignored SIGTERM (a parent started with
-    it ignored: measured, the Ctrl-C test hung for good in a full test run). A Python handler is not
+    it ignored: seen, the Ctrl-C test hung for good in a full test run). A Python handler is not
     inherited across exec, so a no-op one keeps SIGTERM ignored here while the workers start with
     the default."""
     context = multiprocessing.get_context("spawn")

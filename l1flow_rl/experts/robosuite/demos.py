@@ -1,10 +1,12 @@
 """Scripted robosuite demonstrations as a robomimic file.
 
-Episodes run without cameras (~100 steps/s instead of ~14 per camera), recording robomimic's
-low-dimensional observations, the MuJoCo state before each action, the actions, rewards and the
-model XML. An image task's file then gets its camera observations by replaying the stored states
-(:func:`l1flow_rl.envs.robosuite.regenerate.regenerate_observations`). Episode ``i`` of a file
-made with ``seed`` resets the scene from seed ``seed + attempt``; failed attempts are skipped.
+Episodes run without cameras (several times faster:
+``benchmarks/results/robosuite_throughput_robosuite_lift.json`` against ``..._lift_image.json``),
+recording robomimic's low-dimensional observations, the MuJoCo state before each action, the
+actions, rewards and the model XML. An image task's file then gets its camera observations by
+replaying the stored states (:func:`l1flow_rl.envs.robosuite.regenerate.regenerate_observations`).
+Episode ``i`` of a file made with ``seed`` resets the scene from seed ``seed + attempt``; failed
+attempts are skipped.
 """
 
 from __future__ import annotations

@@ -465,12 +465,13 @@ class ToolHangExpert(ScriptedExpert):
         # the ring's axis 75 deg from the bar, and the tool turned 15 deg about the vertical: nearly
         # flat, so that it drops round the hook's upright; the turn keeps the hand's last joint off
         # its limit (the ring must turn ~150 deg from where the tool lies). Fixed, not drawn: where
-        # the dropped ring lands is sensitive to them (drawing 73-77 and 12-18 deg and 4-5 mm along
-        # the bar took the success rate on seeds 0-19 from 0.75 to 0.60)
+        # the dropped ring lands is sensitive to them (drawn a few degrees and a millimetre around
+        # these, the expert succeeded less often)
         tilt, psi = np.radians(75.0), np.radians(15.0)
         # the ring's centre from the bar's end, over the upright (7.5 mm long). The failures leave the
-        # ring caught on the upright (~3 mm along the bar, ~4.5 mm above it): 5.5 mm along succeeds on
-        # 0.82 of seeds 0-99, 4.5 mm on 0.71 (bench_robosuite_experts, the same seeds)
+        # ring caught on the upright, short of it along the bar and above it: 5.5 mm along succeeds
+        # more often than 4.5 mm on the same seeds (the expert's rate:
+        # benchmarks/results/robosuite_experts.json)
         along = 0.0055
         held: dict[str, Rotation] = {}
 

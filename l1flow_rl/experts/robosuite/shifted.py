@@ -5,7 +5,7 @@ episodes that succeed join the file, labelled ``shifted``.
 
 Why: a 30-episode mixed Can set starts 3 of its episodes in the start bin's far quartile, and a policy
 trained on it closes its grasp pulled toward the bin's centre there; BC on 100 episodes (22 far
-starts) has no pull (``benchmarks/results/diagnose_can_mixed30c_grasp.json``). Each attempt costs one
+starts) has no pull. Each attempt costs one
 episode of env steps, counted in the file's ``shifted_replays`` attribute.
 
 Attempt ``i`` resets the scene from seed ``SHIFT_SEEDS + 100_000 * seed + i``: apart from the

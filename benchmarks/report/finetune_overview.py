@@ -1,0 +1,476 @@
+"""Fine-tuning at a glance: the headline arms of every fine-tuning start, one table and one figure per
+start, read from the saved ``finetune_online_*.json`` files.
+
+Each ``bench_finetune_online`` invocation saves one file per experiment (one recipe, its controls); a
+reader asking "what helped on Can" wants the arms from one start side by side. :data:`HEADLINE` names
+them (a curated list: which rows a reader needs is a judgement, the numbers are not), and
+``benchmarks.report`` renders the table in RESULTS.md's summary and between the README's fine-tuning
+markers, and draws ``finetune_overview_<start>.png`` per start: each online arm's validation curve
+(mean and min-max band over seeds) against env steps, each arm's test as a marker (online and data
+arms, at their env steps) or a dashed line (arms that take no env step), the start's test as a grey line.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = ["HEADLINE", "Arm", "arm_name", "arms_table", "figure_paths", "overview_figures", "overview_table"]
+
+
+@dataclass(frozen=True)
+class Arm:
+    """One row: ``key`` is ``algorithms.<name>`` (an online arm) or ``controls.<name>`` (an arm without
+    env steps of its own: continued BC, a TD-only arm, or a data method whose env steps are its
+    ``data_cost``) of results file ``file``; ``baseline`` the (file, key) of the continued-BC control it
+    is measured against, if any."""
+
+    label: str
+    file: str
+    key: str
+    baseline: tuple[str, str] | None = None
+
+    @property
+    def online(self) -> bool:
+        return self.key.startswith("algorithms.")
+
+
+_CAN_C = "finetune_online_robosuite_can_mixed30c_"
+_CAN_CBC = (f"{_CAN_C}continued_bc.json", "controls.continued_bc")
+_PICK = "finetune_online_maniskill_pickcube_mixed50b_filtered_bc_an0p02_mask_100k.json"
+_PICK_C = "finetune_online_maniskill_pickcube_mixed50c_"
+_PICK_C_CBC = (f"{_PICK_C}continued_bc.json", "controls.continued_bc")
+_SQUARE_CBC = ("finetune_online_robosuite_square50_continued_bc_8k.json", "controls.continued_bc")
+
+#: start -> its arms. Every arm of a start must share the start's run and test figure (checked): rows
+#: from different starts are not comparable. The critic arms' starts are the ones they were measured on.
+HEADLINE: dict[str, list[Arm]] = {
+    "PickCube (50 mixed episodes)": [
+        Arm(
+            "filtered BC online, preset `filtered_bc_delta`",
+            _PICK,
+            "algorithms.filtered_bc",
+            (_PICK, "controls.continued_bc"),
+        ),
+        Arm("continued BC, 8,000 updates", _PICK, "controls.continued_bc"),
+    ],
+    "PickCube (50 mixed episodes, a later start)": [
+        Arm(
+            "QC, flow frozen, best of 8, online",
+            f"{_PICK_C}qc_frozen_100k.json",
+            "algorithms.qc",
+            _PICK_C_CBC,
+        ),
+        Arm(
+            "QC's TD-only arm, 11,500 updates",
+            f"{_PICK_C}qc_frozen_100k.json",
+            "controls.qc_offline",
+            _PICK_C_CBC,
+        ),
+        Arm(
+            "FQL online (3,000 offline updates first, batch 128)",
+            f"{_PICK_C}fql_100k.json",
+            "algorithms.fql",
+            _PICK_C_CBC,
+        ),
+        Arm(
+            "FQL's TD-only arm, 7,750 updates", f"{_PICK_C}fql_100k.json", "controls.fql_offline", _PICK_C_CBC
+        ),
+        Arm(
+            "DSRL-NA online (0.042 updates per env step)",
+            f"{_PICK_C}dsrl_na_100k.json",
+            "algorithms.dsrl_na",
+            _PICK_C_CBC,
+        ),
+        Arm(
+            "DSRL-NA's TD-only arm, 4,000 updates",
+            f"{_PICK_C}dsrl_na_100k.json",
+            "controls.dsrl_na_offline",
+            _PICK_C_CBC,
+        ),
+        Arm("continued BC, 8,000 updates", *_PICK_C_CBC),
+    ],
+    "PickCube (25 expert episodes)": [
+        Arm(
+            "DSRL online, SAC alpha 0.01",
+            "finetune_online_maniskill_pickcube_dsrl_alpha0p01.json",
+            "algorithms.dsrl",
+        ),
+    ],
+    "Can (30 mixed episodes)": [
+        Arm(
+            "filtered BC online, preset `filtered_bc`",
+            f"{_CAN_C}filtered_bc_ema.json",
+            "algorithms.filtered_bc",
+            _CAN_CBC,
+        ),
+        Arm("continued BC, 4,000 updates", *_CAN_CBC),
+        Arm(
+            "200 shifted replays, then 4,000 continued filtered-BC updates",
+            f"{_CAN_C}shift200.json",
+            "controls.continued_bc",
+            _CAN_CBC,
+        ),
+        Arm(
+            "200 shifted replays, then filtered BC online",
+            f"{_CAN_C}shift200_online.json",
+            "algorithms.filtered_bc",
+        ),
+        Arm("QC, flow frozen, best of 8, online", f"{_CAN_C}qc_frozen_100k.json", "algorithms.qc", _CAN_CBC),
+        Arm(
+            "QC's TD-only arm, 11,540 updates",
+            f"{_CAN_C}qc_frozen_100k.json",
+            "controls.qc_offline",
+            _CAN_CBC,
+        ),
+        Arm("FQL online (3,000 offline updates first)", f"{_CAN_C}fql_50k.json", "algorithms.fql"),
+        Arm("FQL's TD-only arm, 5,240 updates", f"{_CAN_C}fql_50k.json", "controls.fql_offline"),
+    ],
+    "Can (30 mixed episodes, an earlier start)": [
+        Arm("DSRL online", "finetune_online_robosuite_can_mixed30_dsrl.json", "algorithms.dsrl"),
+    ],
+    "Square (50 scripted episodes)": [
+        Arm(
+            "200 shifted replays, then 8,000 continued filtered-BC updates",
+            "finetune_online_robosuite_square50_shift200_8k.json",
+            "controls.continued_bc",
+            _SQUARE_CBC,
+        ),
+        Arm("continued BC, 8,000 updates", *_SQUARE_CBC),
+    ],
+}
+
+
+def _block(data: dict, key: str, file: str) -> dict:
+    group, _, name = key.partition(".")
+    block = data.get(group, {}).get(name)
+    if block is None:
+        raise KeyError(f"{file}: no {key!r} (it has {sorted(data.get(group, {}))}); fix HEADLINE")
+    return block
+
+
+def _tests(block: dict, online: bool) -> list[float]:
+    """The seeds' test success_once, in seed order."""
+    if online:
+        return [r["test"]["success_once"] for _, r in sorted(block["runs"].items()) if r.get("test")]
+    seeds = block.get("seeds") or {}
+    return [s["test"]["success_once"] for _, s in sorted(seeds.items())] or [block["test"]["success_once"]]
+
+
+def _data_steps(block: dict) -> float | None:
+    """A data arm's env steps: the mean over seeds of what its replays cost."""
+    costs = [s["data_cost"]["env_steps"] for s in (block.get("seeds") or {}).values() if s.get("data_cost")]
+    return sum(costs) / len(costs) if costs else None
+
+
+def _load(results: Path, name: str, cache: dict[str, dict], label: str) -> dict:
+    if name not in cache:
+        path = results / name
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: named by HEADLINE ({label!r}) but not saved")
+        cache[name] = json.loads(path.read_text())
+    return cache[name]
+
+
+def _read(results: Path, arm: Arm, cache: dict[str, dict]) -> dict[str, Any]:
+    data = _load(results, arm.file, cache, arm.label)
+    block = _block(data, arm.key, arm.file)
+    tests = _tests(block, arm.online)
+    curve = block.get("aggregate", {}).get("curve", []) if arm.online else []
+    row = {
+        "arm": arm,
+        "start": data["controls"]["bc_start"],
+        "tests": tests,
+        "mean": sum(tests) / len(tests),
+        "curve": curve,
+        "env_steps": max((c["env_steps"] for c in curve), default=0) if arm.online else _data_steps(block),
+    }
+    if arm.baseline:
+        name, key = arm.baseline
+        base = _tests(_block(_load(results, name, cache, arm.label), key, name), False)
+        row["baseline"] = sum(base) / len(base)
+    return row
+
+
+def _rows(results: Path, headline: dict[str, list[Arm]]) -> dict[str, list[dict[str, Any]]]:
+    """Each start's rows, after checking that every arm of a start starts where its first does."""
+    cache: dict[str, dict] = {}
+    out = {}
+    for start, arms in headline.items():
+        rows = [_read(results, a, cache) for a in arms]
+        first = rows[0]["start"]
+        for r in rows[1:]:
+            if (r["start"]["run_dir"], r["start"]["test"]["success_once"]) != (
+                first["run_dir"],
+                first["test"]["success_once"],
+            ):
+                raise ValueError(
+                    f"HEADLINE[{start!r}]: {r['arm'].file} starts from {r['start']['run_dir']} (test "
+                    f"{r['start']['test']['success_once']}), {rows[0]['arm'].file} from {first['run_dir']} "
+                    f"(test {first['test']['success_once']}): rows of one start must share it"
+                )
+        out[start] = rows
+    return out
+
+
+def _name(file: str) -> str:
+    return file.removeprefix("finetune_online_").removesuffix(".json")
+
+
+def _k(steps: float) -> str:
+    return f"{steps / 1000:.3g}k"
+
+
+def _points(diff: float) -> str:
+    return f"{round(100 * diff):+d}"
+
+
+def _any_saved(results: Path, headline: dict[str, list[Arm]]) -> bool:
+    """Whether any file the headline names is saved (none: a fresh results folder)."""
+    return any((results / a.file).is_file() for arms in headline.values() for a in arms)
+
+
+def overview_table(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> str | None:
+    """The markdown table of :data:`HEADLINE`, or None when none of its files is saved (a fresh folder).
+    Each row names its file by a number, listed under the table."""
+    if not _any_saved(results, headline):
+        return None
+    lines = [
+        "| start (its test) | arm | seeds | env steps | test success (per seed) | over the start "
+        "| over continued BC | file |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    files: list[str] = []
+    for start, rows in _rows(results, headline).items():
+        start_test = rows[0]["start"]["test"]["success_once"]
+        for i, r in enumerate(rows):
+            steps = r["env_steps"]
+            if not r["arm"].online and steps is None:
+                steps_text = "0"
+            elif not r["arm"].online:
+                steps_text = f"{_k(steps)} of replays"
+            else:
+                steps_text = _k(steps)
+            if r["arm"].file not in files:
+                files.append(r["arm"].file)
+            first = f"{start} ({start_test:.2f})" if i == 0 else ""  # the start names its rows once
+            lines.append(
+                f"| {first} | {r['arm'].label} | {len(r['tests'])} | "
+                f"{steps_text} | {r['mean']:.2f} ({' / '.join(f'{t:.2f}' for t in r['tests'])}) | "
+                f"{_points(r['mean'] - start_test)} | "
+                + (_points(r["mean"] - r["baseline"]) if "baseline" in r else "–")
+                + f" | {files.index(r['arm'].file) + 1} |"
+            )
+    note = (
+        "Test: 100 episodes per seed on the test seeds, of the best-validated weights (a run keeps its "
+        "start when nothing validates above it); differences in points of the mean over seeds. A data "
+        "arm's env steps are those its replays took. Files (`finetune_online_<name>.json`): "
+        + ", ".join(f"{i} `{_name(f)}`" for i, f in enumerate(files, 1))
+        + "."
+    )
+    return "\n".join(lines) + "\n\n" + note
+
+
+#: the algorithms' names as a reader writes them
+_ALGORITHMS = {
+    "filtered_bc": "filtered BC",
+    "qc": "QC",
+    "fql": "FQL",
+    "dsrl": "DSRL",
+    "dsrl_na": "DSRL-NA",
+    "continued_bc": "continued BC",
+}
+#: an override's key -> how an arm's name says it (``{}``: the value)
+_OVERRIDES = {
+    "online.action_noise": "action noise {}",
+    "finetune.filtered_bc.mask_padding": "padding masked",
+    "online.updates_per_step": "{} updates per env step",
+    "finetune.batch_size": "batch {}",
+    "finetune.qc.num_samples": "best of {}",
+    "finetune.qc.freeze_flow": "flow frozen",
+    "offline.steps": "{} offline updates first",
+    "finetune.dsrl.init_alpha": "SAC alpha {}",
+    "finetune.ema_power": "EMA power {}",
+}
+_REPLAYS = "demos.shifted_replays"
+
+
+def _phrase(override: str) -> str | None:
+    key, _, value = override.partition("=")
+    if key == _REPLAYS or value.lower() == "false":
+        return None
+    text = _OVERRIDES.get(key)
+    if text is None:
+        return f"`{override}`"
+    return text.format(f"{int(value):,}" if value.isdigit() else value)
+
+
+def arm_name(group: str, name: str, block: dict, overrides: list[str] | None) -> str:
+    """A readable name for arm ``name`` of a results file's ``group`` ("algorithms" or "controls"):
+    the algorithm, how it ran (online, its TD-only arm, continued BC), its update count, which weights
+    were tested, and the overrides it ran with, e.g. "filtered BC online, action noise 0.02, padding
+    masked"."""
+    base, last = name.removesuffix("_last"), name.endswith("_last")
+    updates = block.get("updates")
+    if group == "algorithms":
+        text = f"{_ALGORITHMS.get(base, base)} online"
+    elif base.endswith("_offline"):
+        alg = base.removesuffix("_offline")
+        text = f"{_ALGORITHMS.get(alg, alg)}'s TD-only arm"
+    elif base.startswith("continued_bc"):
+        text = "continued BC"
+        suffix = base.removeprefix("continued_bc").strip("_")
+        if suffix.endswith("k") and suffix[:-1].isdigit():  # continued_bc_8k: its update count
+            updates = updates or 1000 * int(suffix[:-1])
+        elif suffix:  # continued_bc_on_the_50: what it trained on
+            text += f" ({suffix.replace('_', ' ')})"
+    else:
+        text = f"{_ALGORITHMS.get(base, base)} online"
+    if updates:
+        text += f", {updates:,} updates"
+    if last:
+        text += ", last weights tested"
+    overrides = overrides or []
+    text += "".join(f", {p}" for o in overrides if (p := _phrase(o)))
+    replays = next((o.partition("=")[2] for o in overrides if o.startswith(_REPLAYS + "=")), None)
+    return f"{replays} shifted replays, then {text}" if replays else text
+
+
+def _start_names(files: list[tuple[Path, dict]], headline: dict[str, list[Arm]]) -> dict[tuple, str]:
+    """(start run, its test) -> the start's name in :data:`HEADLINE`, for the starts whose files are here."""
+    by_name = {path.name: data for path, data in files}
+    names = {}
+    for start, arms in headline.items():
+        data = by_name.get(arms[0].file)
+        if data is not None:
+            s = data["controls"]["bc_start"]
+            names.setdefault((s["run_dir"], s["test"]["success_once"]), start)
+    return names
+
+
+def _validation(block: dict) -> str:
+    curve = block.get("aggregate", {}).get("curve", [])
+    return ", ".join(f"{c['env_steps'] / 1000:.3g}k: {c['mean']:.2f}" for c in curve) or "–"
+
+
+def arms_table(files: list[tuple[Path, dict]], headline: dict[str, list[Arm]] = HEADLINE) -> str:
+    """Every arm of every ``finetune_online_*.json`` in one table, grouped by start: its readable name,
+    seeds, env steps, test success per seed, the validation curve of online arms, the gain over the
+    start, and the file it comes from (by number, listed under the table)."""
+    names = _start_names(files, headline)
+    by_start: dict[tuple, list] = {}
+    for i, (_, data) in enumerate(files, 1):
+        s = data["controls"]["bc_start"]
+        key = (s["run_dir"], s["test"]["success_once"])
+        for group in ("controls", "algorithms"):
+            for name, block in data.get(group, {}).items():
+                if name == "bc_start":
+                    continue
+                online = group == "algorithms"
+                tests = _tests(block, online)
+                if not tests:  # an arm whose runs all lack a test
+                    continue
+                if online:
+                    overrides = block.get("budget_overrides")
+                    steps = _k(max((c["env_steps"] for c in block["aggregate"]["curve"]), default=0))
+                else:
+                    overrides = block.get("overrides")
+                    replayed = _data_steps(block)
+                    steps = "0" if replayed is None else f"{_k(replayed)} of replays"
+                row = [arm_name(group, name, block, overrides), len(tests), steps, tests]
+                by_start.setdefault(key, []).append((row, _validation(block) if online else "–", i))
+    lines = [
+        "| start (its test) | arm | seeds | env steps | test success (per seed) | validation (mean) at env "
+        "steps | over the start | file |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for (run, start_test), rows in by_start.items():
+        for j, ((arm, seeds, steps, tests), curve, i) in enumerate(rows):
+            mean = sum(tests) / len(tests)
+            first = f"{names.get((run, start_test), f'`{run}`')} ({start_test:.2f})" if j == 0 else ""
+            per_seed = " / ".join(f"{t:.2f}" for t in tests)
+            lines.append(
+                f"| {first} | {arm} | {seeds} | {steps} | {mean:.2f} ({per_seed}) "
+                f"| {curve} | {_points(mean - start_test)} | {i} |"
+            )
+    note = (
+        "Test: 100 episodes per seed on the test seeds, of the best-validated weights, or of the last "
+        "ones where the arm says so; validation: 50 episodes, mean over seeds. An arm without env steps "
+        "trains on the start's data only (its TD-only arm: the critic arms' updates without collecting)."
+    )
+    return "\n".join(lines) + "\n\n" + note
+
+
+def _slug(start: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "_", start.lower()).strip("_")
+
+
+def figure_paths(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> list[Path]:
+    """Where :func:`overview_figures` saves each start's figure, in :data:`HEADLINE`'s order."""
+    return [results / f"finetune_overview_{_slug(s)}.png" for s in headline]
+
+
+def overview_figures(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> list[Path]:
+    """One figure per start (see the module's docstring); the paths written, none on a fresh folder."""
+    if not _any_saved(results, headline):
+        return []
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    paths = dict(zip(headline, figure_paths(results, headline)))
+    for start, rows in _rows(results, headline).items():
+        fig, ax = plt.subplots(figsize=(7.5, 4.2))
+        ax.axhline(rows[0]["start"]["test"]["success_once"], color="grey", lw=1.5, label="BC start (test)")
+        right = max([r["env_steps"] or 0 for r in rows] + [1])
+        for i, r in enumerate(rows):
+            color, label = f"C{i}", r["arm"].label.replace("`", "")
+            lo, hi = min(r["tests"]), max(r["tests"])
+            if r["curve"]:
+                steps = [c["env_steps"] for c in r["curve"]]
+                ax.plot(steps, [c["mean"] for c in r["curve"]], "o-", ms=3, color=color, label=label)
+                ax.fill_between(
+                    steps,
+                    [c["min"] for c in r["curve"]],
+                    [c["max"] for c in r["curve"]],
+                    color=color,
+                    alpha=0.15,
+                )
+            if r["env_steps"]:  # an online or data arm's test, at its env steps
+                ax.errorbar(
+                    [r["env_steps"]],
+                    [r["mean"]],
+                    yerr=[[r["mean"] - lo], [hi - r["mean"]]],
+                    fmt="D",
+                    ms=7,
+                    color=color,
+                    mec="black",
+                    capsize=3,
+                    label=None if r["curve"] else label,
+                )
+            else:  # no env step of its own: its test as a level
+                ax.axhline(r["mean"], color=color, ls="--", lw=1.2, label=f"{label} (test)")
+        ax.set_xlim(-0.03 * right, 1.05 * right)
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_xlabel("env steps")
+        ax.set_ylabel("success_once")
+        ax.set_title(f"{start}: start test {rows[0]['start']['test']['success_once']:.2f}", fontsize=9)
+        fig.text(
+            0.01,
+            0.01,
+            "lines: validation (50 episodes), band min-max over seeds; diamonds with bars and "
+            "dashes: test (100 episodes per seed), mean and min-max",
+            fontsize=7,
+        )
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6.5, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+        fig.tight_layout(rect=(0, 0.04, 1, 1))
+        fig.savefig(paths[start], dpi=110)
+        plt.close(fig)
+        written.append(paths[start])
+    return written

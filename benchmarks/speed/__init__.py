@@ -1,0 +1,1 @@
+"""Cost measurements (wall time per call) that compare configurations in one run."""
