@@ -8,27 +8,27 @@ Quick use::
 """
 
 from l1flow_rl.evaluation import evaluate
-from l1flow_rl.finetune.best_of_n_actor import BestOfNActor
-from l1flow_rl.finetune.noise_actor import NoiseActor
-from l1flow_rl.finetune.one_step_actor import OneStepActor
+from l1flow_rl.finetune.base import ChunkCriticLoss
+from l1flow_rl.finetune.dsrl.actor import NoiseActor
+from l1flow_rl.finetune.dsrl.loss import DSRLLoss
+from l1flow_rl.finetune.dsrl_na.loss import DSRLNALoss
+from l1flow_rl.finetune.filtered_bc.loss import FilteredBCLoss
+from l1flow_rl.finetune.fql.actor import OneStepActor
+from l1flow_rl.finetune.fql.loss import FQLLoss
+from l1flow_rl.finetune.qc.actor import BestOfNActor
+from l1flow_rl.finetune.qc.loss import QCLoss
 from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.modules.ema import dp_ema_decay, make_ema
 from l1flow_rl.modules.normalizer import Normalizer, NormalizerDict
 from l1flow_rl.modules.policy import ChunkPolicy
 from l1flow_rl.objectives import (
-    ChunkCriticLoss,
     ConsistencyLoss,
     DiffusionLoss,
-    DSRLLoss,
-    DSRLNALoss,
     EDMLoss,
-    FilteredBCLoss,
     FlowMatchingLoss,
-    FQLLoss,
     L1FlowLoss,
     OneDPDLoss,
     OneDPSLoss,
-    QCLoss,
     RegressionLoss,
 )
 

@@ -11,7 +11,7 @@ from doubles.point_mass import POINT_MASS_TASK
 from omegaconf import OmegaConf
 from tensordict.nn import TensorDictModule
 
-from l1flow_rl.workspace.collect import OnlineCollector
+from l1flow_rl.finetune.collect import OnlineCollector
 
 CHUNK = 4
 

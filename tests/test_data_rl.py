@@ -275,7 +275,7 @@ def test_terminated_episodes_only_gives_windows_of_successful_episodes_alone():
 
 def test_filtered_bc_buffers_drop_the_demonstrations_that_fail_and_count_them():
     from l1flow_rl.commands.cli import compose_config
-    from l1flow_rl.workspace.rl_data import RLBuffers
+    from l1flow_rl.finetune.buffers import RLBuffers
 
     cfg = compose_config(
         ["finetune=filtered_bc", "checkpoint=bc.pt", "finetune.batch_size=300"], command="finetune"
@@ -312,7 +312,7 @@ def test_a_resumed_online_buffer_refuses_a_prefetch_pickle_that_names_code(tmp_p
 
     from l1flow_rl.commands.cli import compose_config
     from l1flow_rl.errors import CheckpointReadError
-    from l1flow_rl.workspace.rl_data import RLBuffers
+    from l1flow_rl.finetune.buffers import RLBuffers
 
     cfg = compose_config(["finetune=qc", "checkpoint=bc.pt", "finetune.batch_size=16"], command="finetune")
     demos = make_episodes(lengths=(20, 25), terminated=(True, False))

@@ -294,9 +294,9 @@ def checkpoints(tmp_path_factory):
     return {
         "edm": _fake_checkpoint(d / "edm.pt", ["policy=edm"]),
         "other_task": _fake_checkpoint(d / "task.pt", ["policy=edm", "task=maniskill_pickcube"]),
-        "other_net": _fake_checkpoint(d / "net.pt", ["policy=edm", "policy.down_dims=[32,64,128]"]),
-        "l1flow": _fake_checkpoint(d / "l1flow.pt", ["policy=l1flow", "policy.timestep_scale=1000"]),
-        "ddpm": _fake_checkpoint(d / "ddpm.pt", ["policy=ddpm", "policy.timestep_scale=1000"]),
+        "other_net": _fake_checkpoint(d / "net.pt", ["policy=edm", "network.down_dims=[32,64,128]"]),
+        "l1flow": _fake_checkpoint(d / "l1flow.pt", ["policy=l1flow", "network.timestep_scale=1000"]),
+        "ddpm": _fake_checkpoint(d / "ddpm.pt", ["policy=ddpm", "network.timestep_scale=1000"]),
     }
 
 
@@ -312,7 +312,7 @@ def checkpoints(tmp_path_factory):
         (["policy=l1flow"], "edm", r"trains from demonstrations alone; drop teacher="),
         (["policy=consistency"], "missing", r"teacher=.*does not exist"),
         (["policy=consistency"], "other_task", r"was trained on another task: task\.env_id 'PickCube-v1'"),
-        (["policy=onedp_d"], "other_net", r"has another network: policy\.down_dims \[32, 64, 128\]"),
+        (["policy=onedp_d"], "other_net", r"has another network: network\.down_dims \[32, 64, 128\]"),
         (
             ["policy=consistency"],
             "l1flow",
@@ -367,8 +367,8 @@ E2E = [
     "train.warmup_steps=2",
     "eval.episodes=1",
     "eval.num_envs=1",
-    "policy.down_dims=[16,32]",
-    "policy.timestep_embed_dim=16",
+    "network.down_dims=[16,32]",
+    "network.timestep_embed_dim=16",
     "device=cpu",
 ]
 

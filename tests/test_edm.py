@@ -179,7 +179,7 @@ def test_policy_edm_composes_and_a_wrong_sampler_is_refused_at_config_time():
     from l1flow_rl.config.validate import ConfigValidationError
 
     cfg = compose_config(["policy=edm"])
-    assert (cfg.policy.loss, cfg.policy.sampler, cfg.policy.timestep_scale) == ("edm", "edm_heun", 1000.0)
+    assert (cfg.policy.loss, cfg.policy.sampler, cfg.network.timestep_scale) == ("edm", "edm_heun", 1000.0)
     assert make_sampler(cfg.policy.sampler, **cfg.policy.sampler_kwargs).nfe == 35
     with pytest.raises(
         ConfigValidationError, match=r"policy\.sampler='edm_consistency' reads a 'consistency'"

@@ -6,10 +6,10 @@ from __future__ import annotations
 import pytest
 from omegaconf import OmegaConf
 
+from l1flow_rl import DSRLLoss, DSRLNALoss, FQLLoss, QCLoss
 from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.config.validate import ConfigValidationError
-from l1flow_rl.objectives import DSRLLoss, DSRLNALoss, FQLLoss, QCLoss
-from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
+from l1flow_rl.finetune.registry import get_algorithm
 
 
 @pytest.mark.parametrize(
@@ -27,8 +27,7 @@ def test_presets_compose_validate_and_build_their_loss(preset, loss_cls, q_agg, 
     cfg = compose_config([f"finetune={preset}", "checkpoint=bc.pt"], command="finetune")
     assert cfg.finetune.algorithm == preset and cfg.finetune.q_agg == q_agg
     assert cfg.online.offline_fraction == offline_fraction and cfg.online.warmup_steps == 5000
-    algorithm = FINETUNE_ALGORITHMS[preset]
-    assert algorithm.loss_cls is loss_cls
+    algorithm = get_algorithm(preset)
     small = OmegaConf.merge(cfg.finetune, {"critic_hidden_dims": [16], "qc": {"num_samples": 2}})
     flow = L1FlowActor.for_state(obs_dim=3, action_dim=2, down_dims=(8, 16))
     loss = algorithm.build(flow, small)
@@ -41,12 +40,13 @@ def test_the_delta_control_preset_is_filtered_bc_with_masked_padding_and_action_
     delta = compose_config(
         ["finetune=filtered_bc_delta", "checkpoint=bc.pt", "run_dir=r"], command="finetune"
     )
-    assert delta.finetune.algorithm == "filtered_bc" and delta.finetune.filtered_bc.mask_padding
+    settings = get_algorithm("filtered_bc").settings_of
+    assert delta.finetune.algorithm == "filtered_bc" and settings(delta.finetune).mask_padding
     assert delta.online.action_noise == 0.02 and base.online.action_noise == 0.0
-    assert not base.finetune.filtered_bc.mask_padding
+    assert not settings(base.finetune).mask_padding  # the preset leaves the block at its defaults
     # everything else is filtered_bc's: the two settings are the whole difference
     for cfg in (base, delta):
-        cfg.finetune.filtered_bc.mask_padding = False
+        cfg.finetune.filtered_bc = {"mask_padding": False}
         cfg.online.action_noise = 0.0
     assert OmegaConf.to_container(delta) == OmegaConf.to_container(base)
 
@@ -86,12 +86,12 @@ def test_bad_fine_tuning_settings_fail_at_config_time_naming_the_field():
 
 def test_filtered_bc_preset_builds_a_critic_free_loss_on_successful_online_episodes():
     from l1flow_rl import L1FlowActor
-    from l1flow_rl.objectives.filtered_bc import FilteredBCLoss
+    from l1flow_rl.finetune.filtered_bc.loss import FilteredBCLoss
 
     cfg = compose_config(["finetune=filtered_bc", "checkpoint=bc.pt"], command="finetune")
     assert cfg.finetune.batch_size == 64 and cfg.online.offline_fraction == 0.5
     assert cfg.finetune.ema_power == 0.75  # the flow acts on its EMA, as in its BC run
-    algorithm = FINETUNE_ALGORITHMS["filtered_bc"]
+    algorithm = get_algorithm("filtered_bc")
     assert algorithm.successful_episodes_only and algorithm.uses_offline_data
     flow = L1FlowActor.for_state(obs_dim=3, action_dim=2, down_dims=(8, 16))
     loss = algorithm.build(flow, cfg.finetune)
@@ -106,7 +106,7 @@ def test_filtered_bc_preset_builds_a_critic_free_loss_on_successful_online_episo
 
 
 def test_a_fine_tune_adopts_its_starts_data_unless_the_command_line_sets_it():
-    from l1flow_rl.workspace.finetune import adopt_start_data
+    from l1flow_rl.finetune.loop import adopt_start_data
 
     bc = compose_config(
         ["task=robosuite_can", "demos=mixed", "demos.num=30", "data.labels=[expert,noisy]"], command="train"

@@ -14,9 +14,14 @@ pytest.importorskip("mani_skill", reason="needs ManiSkill: pip install 'l1flow-r
 
 from l1flow_rl import BestOfNActor, NoiseActor
 from l1flow_rl.commands.cli import main
+from l1flow_rl.finetune.base import Learner
 from l1flow_rl.finetune.proposal_cache import ProposalCache
-from l1flow_rl.workspace import finetune as finetune_job
-from l1flow_rl.workspace.checkpoint import CheckpointMismatchError, load_actor, load_checkpoint
+from l1flow_rl.workspace.checkpoint import (
+    CheckpointMismatchError,
+    ResumeMismatchError,
+    load_actor,
+    load_checkpoint,
+)
 
 pytestmark = pytest.mark.maniskill
 
@@ -146,20 +151,20 @@ def _killed_and_resumed(run_dir, args, monkeypatch, kill_at: int = 4 + 2, saved:
     from the last checkpoint (default: after the first round; ``saved``: the progress it holds): the
     resumed run's last checkpoint."""
     saved = saved or {"env_steps": 40}
-    real_update, calls = finetune_job.update, {"n": 0}
+    real_update, calls = Learner.update, {"n": 0}
 
-    def crashing_update(*a, **k):
+    def crashing_update(self, batch):
         calls["n"] += 1
         if calls["n"] == kill_at:
             raise RuntimeError("simulated kill")
-        return real_update(*a, **k)
+        return real_update(self, batch)
 
-    monkeypatch.setattr(finetune_job, "update", crashing_update)
+    monkeypatch.setattr(Learner, "update", crashing_update)
     with pytest.raises(RuntimeError, match="simulated kill"):
         main(args)
     progress = load_checkpoint(run_dir / "checkpoints" / "latest.pt")["progress"]
     assert {k: progress[k] for k in saved} == saved
-    monkeypatch.setattr(finetune_job, "update", real_update)
+    monkeypatch.setattr(Learner, "update", real_update)
     assert main([*args, "resume=true"]) == 0
     return load_checkpoint(run_dir / "checkpoints" / "latest.pt")
 
@@ -222,7 +227,7 @@ def test_a_finished_run_resumed_with_more_env_steps_goes_on_as_the_longer_run(
         ("online.steps=20", r"online\.steps=20: the run has already taken 40 env steps"),
         ("offline.steps=6", r"offline\.steps=6: the run made 4 offline updates and went online"),
     ):
-        with pytest.raises(finetune_job.ResumeMismatchError, match=says):
+        with pytest.raises(ResumeMismatchError, match=says):
             main(["--debug", *args, bad, "resume=true"])
     assert main([*args, "resume=true"]) == 0
     _assert_same_run(

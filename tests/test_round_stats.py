@@ -6,7 +6,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from l1flow_rl.workspace.collect import round_stats
+from l1flow_rl.finetune.collect import round_stats
 
 
 def _round(done_at: list[list[int]], success_at: list[list[int]], steps: int = 6) -> TensorDict:

@@ -81,7 +81,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
         "a checkpoint as a pretrained folder (config.json, model.safetensors; program=true: policy.pt2)",
     ),
     "finetune": (
-        "l1flow_rl.workspace.finetune",
+        "l1flow_rl.finetune.loop",
         "run_finetune",
         "flow Q-learning on a BC checkpoint, offline then online: eval.json, checkpoints",
     ),
@@ -103,7 +103,12 @@ _INVALID = (HydraException, OmegaConfBaseException, ValueError)
 
 
 def _store_schema() -> None:
-    ConfigStore.instance().store(name="base_config", node=AppConfig)
+    schema = OmegaConf.structured(AppConfig)
+    # ``finetune`` holds the chosen algorithm's own block, finetune.<name>, which the schema cannot name
+    # (an algorithm is a folder, or a user's module): the block may be added, and the validator checks
+    # it against that algorithm's settings (l1flow_rl.finetune.registry); the common fields stay typed
+    OmegaConf.set_struct(schema.finetune, False)
+    ConfigStore.instance().store(name="base_config", node=schema)
 
 
 def _create_hydra(command: str, config_dir: str | None = None) -> Any:

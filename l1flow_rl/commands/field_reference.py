@@ -18,15 +18,24 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from l1flow_rl.commands.cli import COMMANDS, compose_config
 from l1flow_rl.config.app import AppConfig
 from l1flow_rl.config.path_fields import PATH_KEY
 from l1flow_rl.config.paths import CONFIG_DIR
 from l1flow_rl.config.ranges import field_range, is_numeric, walk_fields
+from l1flow_rl.finetune.registry import builtin_algorithm_names, get_algorithm
 
-__all__ = ["BEGIN", "END", "composed_configs", "field_rows", "reference_markdown", "update_page"]
+__all__ = [
+    "BEGIN",
+    "END",
+    "composed_configs",
+    "field_rows",
+    "reference_markdown",
+    "schema_fields",
+    "update_page",
+]
 
 BEGIN = "<!-- fields:begin (python -m l1flow_rl.commands.field_reference) -->"
 END = "<!-- fields:end -->"
@@ -47,6 +56,18 @@ def _finetune_presets() -> Iterator[tuple[str, DictConfig]]:
         yield "finetune", compose_config([f"finetune={preset}"], command="finetune")
 
 
+def schema_fields(cfg: DictConfig) -> Iterator[tuple[str, dataclasses.Field, Any, Any]]:
+    """Every leaf field ``cfg`` holds, as :func:`~l1flow_rl.config.ranges.walk_fields` yields them:
+    the app's schema, then the chosen fine-tuning algorithm's settings block (``finetune.<name>``,
+    whose schema the algorithm names)."""
+    yield from walk_fields(cfg, AppConfig)
+    name = OmegaConf.select(cfg, "finetune.algorithm", default=None)
+    if name in builtin_algorithm_names() and OmegaConf.select(cfg, f"finetune.{name}") is not None:
+        settings = get_algorithm(name).settings  # the block holds the preset's keys; the rest default
+        block = OmegaConf.merge(OmegaConf.structured(settings), cfg.finetune[name])
+        yield from walk_fields(block, settings, f"finetune.{name}", cfg)
+
+
 def _default(f: dataclasses.Field) -> Any:
     if f.default is not dataclasses.MISSING:
         return f.default
@@ -60,7 +81,7 @@ def field_rows(configs: list[DictConfig]) -> list[tuple[str, str, str]]:
     in schema order, each key once."""
     rows: dict[str, tuple[str, str, str]] = {}
     for cfg in configs:
-        for key, f, hint, _ in walk_fields(cfg, AppConfig):
+        for key, f, hint, _ in schema_fields(cfg):
             if key in rows:
                 continue
             rng, rule = field_range(f), f.metadata.get(PATH_KEY)

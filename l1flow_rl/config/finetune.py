@@ -1,16 +1,17 @@
 """Fine-tuning settings (``l1flow-rl finetune finetune=<preset> checkpoint=...``): the algorithm and its
-critic (``finetune``, one block of knobs per algorithm), the offline updates before any env step
-(``offline``) and the online loop (``online``).
+critic (``finetune``; the chosen algorithm's own block, ``finetune.<name>``, is typed by that
+algorithm's settings dataclass, in its folder under ``l1flow_rl/finetune/``), the offline updates
+before any env step (``offline``) and the online loop (``online``).
 
 Defaults are the references' (QC: ColinQiyangLi/qc, FQL: seohongpark/fql, DSRL: ajwagen/dsrl, RLPD:
 ikostrikov/rlpd); each departure says why in one line. The presets in ``configs/finetune/`` pick an
-algorithm; the algorithms themselves are registered in :mod:`l1flow_rl.objectives.finetune_registry`,
-which the config validator asks.
+algorithm; the algorithms themselves are found by :mod:`l1flow_rl.finetune.registry`, which the
+config validator asks.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from l1flow_rl.config.ranges import bounded
 
@@ -18,14 +19,9 @@ __all__ = [
     "CHECKS",
     "CHOICES",
     "REWARD_KEYS",
-    "DSRLNASettings",
-    "DSRLSettings",
-    "FQLSettings",
-    "FilteredBCSettings",
     "FinetuneConfig",
     "OfflineConfig",
     "OnlineConfig",
-    "QCSettings",
     "round_frames",
 ]
 
@@ -34,57 +30,6 @@ __all__ = [
 #: in ManiSkill's PushCube/PickCube/StackCube); values then lie in [0, 1] and discounting rewards
 #: finishing early. ``recorded``: the data's and the env's ("next", "reward").
 REWARD_KEYS = {"sparse": ("next", "terminated"), "recorded": ("next", "reward")}
-
-
-@dataclass
-class QCSettings:
-    num_samples: int = 32  # QC: best of 32 proposals, for acting and for the backup
-    freeze_flow: bool = False  # QC trains the flow with its BC loss on the replay buffer
-
-
-@dataclass
-class FQLSettings:
-    # FQL's README: alpha in {0.03, ..., 10} once Q is normalised; 10 is TorchRL 0.15's FQLLoss default
-    alpha: float = 10.0
-    normalize_q_loss: bool = True  # FQL: lambda = 1 / mean|Q| (detached)
-    actor_hidden_dims: list[int] = field(default_factory=lambda: [512, 512, 512, 512])  # FQL: 4 x 512
-
-
-@dataclass
-class DSRLSettings:
-    noise_bound: float = 1.5  # DSRL: |w| <= 1.5 (tanh-squashed)
-    target_entropy: float = 0.0  # DSRL's configs
-    # SAC's automatic temperature (stable-baselines3, which DSRL uses) starts at 1; measured on PushCube:
-    # log pi over the 16 x 4 noise is ~-69 nats, so at 1 the soft target adds ~62 per bootstrap against
-    # sparse rewards <= 1 (Q 17 -> 49 in 400 updates). 1e-3 keeps the entropy term at the rewards' scale.
-    init_alpha: float = 1.0e-3
-    actor_hidden_dims: list[int] = field(
-        default_factory=lambda: [512, 512, 512]
-    )  # DSRL: 3 x 2048; cost on 2 cores
-
-
-@dataclass
-class DSRLNASettings(DSRLSettings):
-    # noises per observation the noise critic is fitted on, decoded once (the flow is frozen; DSRL-NA
-    # draws one fresh noise per state at every distillation step, a flow call per update on 2 cores)
-    distill_samples: int = 4
-
-
-@dataclass
-class FilteredBCSettings:
-    """The L1 Flow loss on demonstrations and successful online episodes (``finetune.lr``,
-    ``finetune.batch_size`` and the ``online`` block set its schedule)."""
-
-    # leave the chunk steps padded past an episode's end out of the loss. An online success ends the
-    # episode at the first step inside the goal while the arm still moves toward it, and delta
-    # control pads "no motion" after the end: a false "stop here" at the threshold. PickCube's
-    # fine-tuned policy then parks 2.7-4.6 cm from the goal (42 of its 47 test failures; its
-    # collected successes end at a median 2.2 cm, moving at 0.077, the demonstrations at 0.8 cm):
-    # benchmarks/results/diagnose_pickcube_mixed50b.json. Masked, with online.action_noise=0.02, the
-    # same start tests 0.64 / 0.67 / 0.57 at 100k env steps against 0.53 / 0.46 / 0.52 unmasked
-    # (finetune_online_maniskill_pickcube_mixed50b_filtered_bc_an0p02_mask_100k.json). Off by default:
-    # absolute control (Can) pads by holding the last target, a true label, and is not measured masked.
-    mask_padding: bool = False
 
 
 @dataclass
@@ -108,11 +53,6 @@ class FinetuneConfig:
     rl_horizon: int = bounded(0, ge=0, zero="the policy's action_steps")
     # sparse (success at the terminal step) | recorded (the env's reward), see REWARD_KEYS
     reward: str = "sparse"
-    qc: QCSettings = field(default_factory=QCSettings)
-    fql: FQLSettings = field(default_factory=FQLSettings)
-    dsrl: DSRLSettings = field(default_factory=DSRLSettings)
-    dsrl_na: DSRLNASettings = field(default_factory=DSRLNASettings)
-    filtered_bc: FilteredBCSettings = field(default_factory=FilteredBCSettings)
     log_every: int = bounded(50, ge=1)  # updates
 
 
@@ -183,7 +123,7 @@ def _check_finetune(cfg, command: str) -> list[str]:
 
 #: The fine-tuning fields' allowed values and cross-field checks, read by the config validator
 #: (l1flow_rl.config.validate), so that a bad value fails at config time, naming the field. The algorithm's
-#: name and its own rules live beside the algorithms (l1flow_rl.objectives.finetune_registry).
+#: name, settings and own rules live beside the algorithms (l1flow_rl.finetune.registry).
 CHOICES = {
     "finetune.q_agg": lambda: ("mean", "min"),
     "finetune.reward": lambda: tuple(REWARD_KEYS),

@@ -45,13 +45,13 @@ from l1flow_rl.data.loading import dataset_problem
 from l1flow_rl.envs.registry import registered_simulators
 from l1flow_rl.evaluation.plan import eval_config_problems
 from l1flow_rl.evaluation.protocols import protocol_names
+from l1flow_rl.finetune.registry import finetune_problems
 from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_problems, samplers_for
 from l1flow_rl.modules.normalizer import NormalizerMode
 from l1flow_rl.networks.encoders import encoder_names, encoder_problems
 from l1flow_rl.networks.encoders.resnet18_gn import WIDTHS
 from l1flow_rl.networks.mlp import ACTIVATIONS
 from l1flow_rl.networks.registry import network_names
-from l1flow_rl.objectives.finetune_registry import finetune_algorithm_names, finetune_algorithm_problems
 from l1flow_rl.objectives.registry import get_loss, loss_names, loss_problems
 from l1flow_rl.workspace.teacher import teacher_problems
 
@@ -111,7 +111,6 @@ BUILTIN_CHOICES: dict[str, Callable[[], Iterable[str]]] = {
     "network.activation": lambda: sorted(ACTIVATIONS),
     "eval.protocol": protocol_names,
     "eval.val_sampler": sampler_names,
-    "finetune.algorithm": finetune_algorithm_names,
     **finetune.CHOICES,
 }
 
@@ -236,7 +235,7 @@ BUILTIN_CHECKS: tuple[Check, ...] = (
     _check_val_sampler,
     eval_config_problems,
     *finetune.CHECKS,
-    finetune_algorithm_problems,
+    finetune_problems,
     quality_problems,
     teacher_problems,
 )

@@ -9,7 +9,7 @@ The chunk at noise level sigma is ``x = x0 + sigma * n`` (``n ~ N(0, I)``, ``x0`
 with EDM's ``c_skip = sd^2 / (sigma^2 + sd^2)``, ``c_out = sigma sd / sqrt(sigma^2 + sd^2)``,
 ``c_in = 1 / sqrt(sigma^2 + sd^2)`` and ``c_noise = ln(sigma) / 4`` (``sd``: sigma_data). ``c_noise``
 is the time value the network takes, through the same path as every other method: the UNet multiplies
-it by ``policy.timestep_scale`` before its sinusoidal embedding (1000 in the EDM configs, so the
+it by ``network.timestep_scale`` before its sinusoidal embedding (1000 in the EDM configs, so the
 network sees ``250 ln(sigma)``, Consistency Policy's scaling).
 
 With ``boundary=True`` the skip and output scalings are Consistency Policy's, shifted by sigma_min:

@@ -21,7 +21,7 @@ class EDMLoss(ChunkLossBase):
 
     The preconditioning (sigma_data) is the actor's sampler's (:class:`~l1flow_rl.flow.EDMHeunSampler`,
     :mod:`l1flow_rl.flow.karras`), so training and sampling cannot disagree on it; ``c_noise = ln(sigma)/4``
-    enters the network where every method's time does (scaled by ``policy.timestep_scale``).
+    enters the network where every method's time does (scaled by ``network.timestep_scale``).
 
     Returns ``"loss_edm"`` and the detached diagnostics ``"sigma_median"`` and ``"x_error_l1"`` (mean
     |D - x0| in normalised units).

@@ -22,8 +22,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from l1flow_rl.config.network import NetworkConfig, upgrade_saved_config
 from l1flow_rl.errors import CheckpointMismatchError, CheckpointReadError
+from l1flow_rl.finetune.registry import get_algorithm
 from l1flow_rl.modules.actor import L1FlowActor
-from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.utils.state_dict import load_state_into
 from l1flow_rl.workspace.build import build_actor
 
@@ -271,14 +271,14 @@ def load_actor(
 ) -> tuple[L1FlowActor, DictConfig]:
     """Rebuild the actor a checkpoint was trained with (EMA weights by default) and its config: an
     :class:`~l1flow_rl.L1FlowActor`, or for a fine-tuning run the acting module of its algorithm
-    (its config's ``policy.finetune`` block, :mod:`l1flow_rl.objectives.finetune_registry`) around one."""
+    (its config's ``policy.finetune`` block, :mod:`l1flow_rl.finetune.registry`) around one."""
     state = load_checkpoint(path, map_location)
     cfg = OmegaConf.create(state["config"])
     shapes = {k: tuple(v) for k, v in state["obs_shapes"].items()}
     actor = build_actor(cfg.policy, shapes, int(state["action_dim"]), cfg.get("encoder"), cfg.get("network"))
     finetune = cfg.policy.get("finetune")
     if finetune:  # a fine-tuned policy: the algorithm's acting module around the flow
-        actor = FINETUNE_ALGORITHMS[finetune.algorithm].build(actor, finetune).actor
+        actor = get_algorithm(finetune.algorithm).build(actor, finetune).actor
     weights = state["ema"] if use_ema and state.get("ema") is not None else state["model"]
     load_state_into(actor, weights, str(path))
     return actor.to(map_location).eval(), cfg

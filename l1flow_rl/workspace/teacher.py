@@ -55,11 +55,16 @@ TASK_FIELDS = ("task.env_id", "task.obs_mode", "task.control_mode")
 NETWORK_FIELDS = (
     "policy.obs_horizon",
     "policy.pred_horizon",
-    "policy.down_dims",
-    "policy.timestep_embed_dim",
-    "policy.kernel_size",
-    "policy.n_groups",
-    "policy.timestep_scale",
+    "network.name",
+    "network.timestep_embed_dim",
+    "network.timestep_scale",
+    "network.down_dims",
+    "network.kernel_size",
+    "network.n_groups",
+    "network.hidden_dims",
+    "network.activation",
+    "network.layer_norm",
+    "network.residual",
     "encoder.name",
 )
 #: the methods whose checkpoint can teach, by the prediction type of their sampler

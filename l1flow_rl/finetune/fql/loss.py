@@ -16,10 +16,10 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
-from l1flow_rl.finetune.one_step_actor import OneStepActor, OneStepPolicy
+from l1flow_rl.finetune.base import ChunkCriticLoss
+from l1flow_rl.finetune.fql.actor import OneStepActor, OneStepPolicy
 from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.networks.critic import ChunkCritic
-from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.objectives.l1flow import L1FlowLoss
 from l1flow_rl.utils.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
 

@@ -16,11 +16,11 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor
 
-from l1flow_rl.finetune.best_of_n_actor import BestOfNActor
+from l1flow_rl.finetune.base import ChunkCriticLoss
 from l1flow_rl.finetune.proposal_cache import ProposalCache
+from l1flow_rl.finetune.qc.actor import BestOfNActor
 from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.networks.critic import ChunkCritic
-from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.objectives.l1flow import L1FlowLoss
 from l1flow_rl.utils.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
 

@@ -7,10 +7,11 @@ passes through the flow, and :class:`~l1flow_rl.DSRLLoss` never evaluates it.
 
 Steering the noise moves the executed actions only as far as the sampler lets the noise matter. The
 2-NFE L1 Flow sampler, trained on unimodal demonstrations, is nearly deterministic in its noise
-(``benchmarks/results/noise_authority.json``: on PickCube the executed positions move ~5 % as much
-over noise draws as over states). A bounded residual on the executed window instead (Policy
-Decorator's) was measured and retired: validation fell from 0.20 to 0.06 (PickCube) and 0.22 to 0.08
-(Can) as its actor followed the critics' extrapolation (docs/finetune.md).
+(``benchmarks/results/noise_authority.json``: on PickCube the executed positions move far less over
+noise draws than over states). A bounded residual on the executed window instead (Policy
+Decorator's) was tried and retired: its actor followed the critics' extrapolation (their bias on
+its data: ``benchmarks/results/critic_bias_maniskill_pickcube_residual.json``) and validated below its
+start (docs/finetune.md).
 """
 
 from __future__ import annotations

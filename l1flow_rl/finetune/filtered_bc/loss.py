@@ -19,7 +19,7 @@ __all__ = ["FilteredBCLoss"]
 
 class FilteredBCLoss(LossModule):
     """The flow's L1 Flow loss on the windows it is given; both buffers keep only the windows of
-    episodes that ended in success (the registry's ``successful_episodes_only``): a mixed-quality
+    episodes that ended in success (its algorithm's ``successful_episodes_only``): a mixed-quality
     demonstration set's failed episodes are filtered out like the failed online ones.
 
     Args:

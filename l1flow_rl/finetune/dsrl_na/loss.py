@@ -28,11 +28,11 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import Tensor, nn
 
-from l1flow_rl.finetune.noise_actor import NoiseActor, NoisePolicy
+from l1flow_rl.finetune.base import ChunkCriticLoss
+from l1flow_rl.finetune.dsrl.actor import NoiseActor, NoisePolicy
+from l1flow_rl.finetune.dsrl.loss import sac_actor_terms
 from l1flow_rl.finetune.proposal_cache import ProposalCache
 from l1flow_rl.networks.critic import ChunkCritic, critic_module
-from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
-from l1flow_rl.objectives.dsrl import sac_actor_terms
 from l1flow_rl.utils.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
 
 __all__ = ["DSRLNALoss"]
@@ -152,8 +152,8 @@ class DSRLNALoss(ChunkCriticLoss):
     def distill_loss(self, td: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
         """Q^W against Q^A of the decoded chunks, half on each observation's cached prior noises, half on
         a fresh draw of the actor's noise (decoded here): fitted on the prior alone, Q^W valued the
-        actor's w at 1.0-1.1 while Q^A's values were -0.2 (Can, 14k env steps): the actor climbed the
-        noise critic where it was never fitted."""
+        actor's w far above what Q^A gave the chunks they decode to: the actor climbed the noise critic
+        where it was never fitted."""
         obs = self.read_observation(td, self.tensor_keys.observation)
         prior, out = self._distill_prior(obs)
         with torch.no_grad():

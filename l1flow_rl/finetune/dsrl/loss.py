@@ -20,9 +20,9 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 from torch import Tensor, nn
 
-from l1flow_rl.finetune.noise_actor import NoiseActor, NoisePolicy
+from l1flow_rl.finetune.base import ChunkCriticLoss
+from l1flow_rl.finetune.dsrl.actor import NoiseActor, NoisePolicy
 from l1flow_rl.networks.critic import ChunkCritic
-from l1flow_rl.objectives.chunk_critic import ChunkCriticLoss
 from l1flow_rl.utils.doc_examples import FLOW, TRAIN_STEP, TRANSITIONS, add_example
 
 __all__ = ["DSRLLoss", "sac_actor_terms"]
@@ -67,7 +67,7 @@ class DSRLLoss(ChunkCriticLoss):
     Keyword Args:
         target_entropy: SAC's entropy target for log pi over the H x A noise (DSRL: 0).
         init_alpha: the starting temperature (1e-3: at SAC's 1 the entropy of the H x A noise swamps
-            sparse rewards, see :class:`~l1flow_rl.config.finetune.DSRLSettings`).
+            sparse rewards, see :class:`~l1flow_rl.finetune.dsrl.settings.DSRLSettings`).
         td_options: ``gamma``, ``q_agg`` and ``rl_horizon`` of :class:`~l1flow_rl.ChunkCriticLoss`
             (here ``q_agg`` defaults to ``min``, as SAC's).
 
