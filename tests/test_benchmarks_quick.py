@@ -164,8 +164,12 @@ def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradic
     }
     (tmp_path / "success_x.json").write_text(json.dumps({"quick": False, "tasks": tasks}))
     (tmp_path / "success_y_quick.json").write_text(json.dumps({"quick": True, "tasks": tasks}))
+    # a sweep that changed the network: as saved before the network group, a network override, another network
     ablation = {"quick": False, "args": {"extra": ["policy.timestep_scale=1000"]}, "tasks": tasks}
     (tmp_path / "success_z_ablation.json").write_text(json.dumps(ablation))
+    for name, override in (("network", "network.timestep_scale=1000"), ("mlp", "network=mlp")):
+        changed = {"quick": False, "args": {"extra": [override]}, "tasks": tasks}
+        (tmp_path / f"success_z_{name}.json").write_text(json.dumps(changed))
     latency = {
         "machine": {"device": "cpu"},
         "inference": {
@@ -179,7 +183,7 @@ def test_claims_table_applies_its_rules_to_the_saved_figures_including_contradic
     text = claims_table(tmp_path)
     rows = {line.split(" | ")[1]: line for line in text.splitlines() if line.startswith("| ") and "(" in line}
     assert text.count("`success_x.json`") == 6 and "success_y_quick" not in text  # quick files never count
-    assert "success_z_ablation" not in text  # nor a sweep that changed the policy
+    assert "success_z_" not in text  # nor a sweep that changed the policy (its network included)
     a, b, _ = (line for line in text.splitlines() if "2 NFE match" in line)
     assert a.endswith("| below DDPM-100 |") and b.endswith("| holds |")
     conv_a, conv_b, conv_c = (line for line in text.splitlines() if "converges faster" in line)
@@ -220,7 +224,7 @@ def test_success_overview_puts_every_compared_task_in_one_table_and_figure(tmp_p
     save("success_c.json", {"lone": {"l1flow": method([0.9])}})  # nothing to compare with
     save("success_a_ddpm.json", {"cube": {"ddpm": method([0.0, 0.0]), "ddpm_ddim16": method([0.0, 0.0])}})
     save("success_d_quick.json", {"q": {"l1flow": method([1.0]), "flow": method([1.0])}}, quick=True)
-    e = {"quick": False, "args": {"demos": 9, "steps": 5, "extra": ["policy.timestep_scale=1000"]}}
+    e = {"quick": False, "args": {"demos": 9, "steps": 5, "extra": ["network.timestep_scale=1000"]}}
     (tmp_path / "success_e.json").write_text(
         json.dumps({**e, "tasks": {"z": {"l1flow": method([0.5]), "flow": method([0.5])}}})
     )
@@ -229,7 +233,7 @@ def test_success_overview_puts_every_compared_task_in_one_table_and_figure(tmp_p
     # lone and quick files left out; a DDPM-only file (its seeds finished later) gets its own row
     assert [r.split(" | ")[0] for r in rows] == ["| cube", "| cube", "| t", "| z"]
     assert (
-        "9 demos, 5 steps, 1 seed, `policy.timestep_scale=1000` (`success_e.json`)" in rows[3]
+        "9 demos, 5 steps, 1 seed, `network.timestep_scale=1000` (`success_e.json`)" in rows[3]
     )  # overrides shown
     zeros = "| – | – | 0.000 [0.00, 0.04] | 0.000 [0.00, 0.04] | – |"  # no bold: nothing to single out
     assert f"2 seeds (`success_a_ddpm.json`) {zeros}" in rows[1]
@@ -371,7 +375,11 @@ def test_a_finished_run_of_another_setting_is_refused_not_read_back(tmp_path):
 
     run_dir = tmp_path / "maniskill_stackcube" / "l1flow" / "seed0"
     run_dir.mkdir(parents=True)
-    saved = {"task": {"name": "maniskill_stackcube"}, "policy": {"name": "l1flow", "down_dims": [16, 32]}}
+    saved = {
+        "task": {"name": "maniskill_stackcube"},
+        "policy": {"name": "l1flow"},
+        "network": {"name": "unet", "down_dims": [16, 32]},
+    }
     OmegaConf.save(
         OmegaConf.create({**saved, "seed": 0, "demos": {"num": 100}, "train": {"steps": 12000}}),
         run_dir / "config.yaml",
@@ -382,7 +390,7 @@ def test_a_finished_run_of_another_setting_is_refused_not_read_back(tmp_path):
         "policy=l1flow",
         "seed=0",
         "demos.num=100",
-        "policy.down_dims=[16,32]",
+        "network.down_dims=[16,32]",
     ]
     assert train(Run("same", same, run_dir), tmp_path / "data")["success_once"] == 0.62  # read back
     other = [*same[:3], "demos.num=300", "train.steps=2500"]

@@ -29,7 +29,7 @@ BC = [
     "train.steps=30",
     "train.batch_size=16",
     "eval.episodes=0",
-    "policy.down_dims=[16,32]",
+    "network.down_dims=[16,32]",
     "device=cpu",
 ]
 # 3 offline updates, then 2 rounds of 60 env steps (2 envs), 0.05 updates per env step (the preset has

@@ -184,19 +184,27 @@ def _copy_latest(run: Path, into: Path) -> Path:
 def load_run(run: Path) -> tuple[DictConfig, Any, Any]:
     """(config with the current schema's defaults for keys the run predates, BC actor, demonstrations)."""
     from l1flow_rl.config.finetune import FinetuneConfig, OnlineConfig
+    from l1flow_rl.config.network import upgrade_saved_config
     from l1flow_rl.config.task import TaskConfig
     from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
     from l1flow_rl.workspace.dataset import load_task_episodes
     from l1flow_rl.workspace.finetune import start_dataset
 
-    cfg = OmegaConf.load(run / "config.yaml")
+    # a run from before the network group: its policy block's UNet settings move to a network block
+    cfg = OmegaConf.create(upgrade_saved_config(OmegaConf.to_container(OmegaConf.load(run / "config.yaml"))))
     cfg.finetune = OmegaConf.merge(OmegaConf.structured(FinetuneConfig), cfg.finetune)
     cfg.online = OmegaConf.merge(OmegaConf.structured(OnlineConfig), cfg.online)
     # typed as the job types it: a simulator's reader options read it by attribute (robosuite: state_keys)
     cfg.task = OmegaConf.merge(OmegaConf.structured(TaskConfig), cfg.task)
     bc_state = load_checkpoint(cfg.checkpoint)
     bc_actor, bc_cfg = load_actor(cfg.checkpoint)  # EMA weights, as the fine-tuning job loads them
-    cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)  # the network is the checkpoint's
+    # the network is the checkpoint's, as the fine-tuning job takes it (policy, network, encoder)
+    cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)
+    for group in ("network", "encoder"):
+        if bc_cfg.get(group) is not None:
+            cfg[group] = (
+                bc_cfg[group] if cfg.get(group) is None else OmegaConf.merge(cfg[group], bc_cfg[group])
+            )
     return cfg, bc_actor, load_task_episodes(cfg, start_dataset(cfg, bc_state, given=[]))
 
 

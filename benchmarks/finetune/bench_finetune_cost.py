@@ -1,9 +1,9 @@
 """Where a fine-tuning update's time goes on this machine, and what acting costs the env loop.
 
 For QC, FQL, DSRL and DSRL-NA (their presets, ``configs/finetune/``) at batch 256 with the task's policy
-network (``PolicyConfig``: the ManiSkill-sized UNet, down_dims 64/128/256) on the task's observation and
-action sizes, the parts of one update of every setting are timed in alternation, all settings in one loop
-(``benchmarks.lib.common.interleaved``):
+network (``PolicyConfig`` and ``NetworkConfig``: the ManiSkill-sized UNet, down_dims 64/128/256) on the
+task's observation and action sizes, the parts of one update of every setting are timed in alternation,
+all settings in one loop (``benchmarks.lib.common.interleaved``):
 
 * ``targets``: the TD target (QC: N proposals at s' by the 2-NFE sampler, the online critics' pick,
   the target critics' value; FQL: mu at s'; DSRL: the noise actor at s'), and within it
@@ -38,7 +38,7 @@ from torchrl.objectives import SoftUpdate
 from benchmarks.lib.common import format_table, interleaved, machine_info, parse_args, save_results
 from benchmarks.speed.bench_env_throughput import measure, policy_in_loop, raw_in_process
 from l1flow_rl.commands.cli import compose_config
-from l1flow_rl.config import PolicyConfig, load_task_config
+from l1flow_rl.config import NetworkConfig, PolicyConfig, load_task_config
 from l1flow_rl.objectives.finetune_registry import FINETUNE_ALGORITHMS
 from l1flow_rl.workspace.build import build_actor
 
@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     obs_dim = int(probe.unwrapped.single_observation_space.shape[-1])
     action_dim = int(probe.unwrapped.single_action_space.shape[0])
     probe.close()
-    policy = dataclasses.asdict(PolicyConfig())
+    policy, network = dataclasses.asdict(PolicyConfig()), dataclasses.asdict(NetworkConfig())
     data = make_batch(args.batch, obs_dim, action_dim, policy)
     small = ["finetune.critic_hidden_dims=[256,256]"]
     settings = {
@@ -169,7 +169,8 @@ def main(argv: list[str] | None = None) -> int:
     # machine hits the settings alike and the ratios between settings stay fair
     fns = {}
     for name, (algorithm, overrides) in settings.items():
-        loss, _ = build_loss(algorithm, build_actor(policy, {"state": (obs_dim,)}, action_dim), overrides)
+        flow = build_actor(policy, {"state": (obs_dim,)}, action_dim, None, network)
+        loss, _ = build_loss(algorithm, flow, overrides)
         fns.update({f"{name}/{part}": fn for part, fn in parts(loss, data).items()})
     ms = interleaved(fns, rounds=args.rounds, device=torch.device("cpu"))
     timings = {name: {} for name in settings}
@@ -230,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
         "task": task.name,
         "obs_dim": obs_dim,
         "action_dim": action_dim,
-        "policy_down_dims": policy["down_dims"],
+        "policy_down_dims": network["down_dims"],  # the key the saved results and the report read
         "batch": args.batch,
         "rounds": args.rounds,
         "quick": args.quick,

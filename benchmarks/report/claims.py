@@ -42,6 +42,14 @@ def pooled_interval(per_seed: list[dict[str, Any]]) -> tuple[float, float] | Non
     return wilson_interval(round(sum(v * e for v, e in counted)), n) if n else None
 
 
+def _changes_policy(override: str) -> bool:
+    """Whether a sweep's override changes the policy's loss, sampler or network: ``policy.*``, and the
+    network group's ``network=...`` or ``network.*`` (the network's settings lived under ``policy.``
+    before that group, so saved sweeps record them there)."""
+    key = override.split("=", 1)[0].lstrip("+~")
+    return key == "network" or key.startswith(("policy.", "network."))
+
+
 def _success_rows(results: Path) -> list[list[str]]:
     """Claim 1 (success) and claim 2 (convergence), per task with L1 Flow and a multi-step method."""
     success, convergence = [], []
@@ -49,7 +57,7 @@ def _success_rows(results: Path) -> list[list[str]]:
         d = _load(path)
         # the claims are about the method as the paper specifies it: a sweep that changed the
         # policy's network or loss (an ablation) is reported in its own section only
-        if d is None or any(o.startswith("policy.") for o in (d.get("args") or {}).get("extra") or []):
+        if d is None or any(_changes_policy(o) for o in (d.get("args") or {}).get("extra") or []):
             continue
         for task, block in d["tasks"].items():
             own = block.get("l1flow")

@@ -99,15 +99,16 @@ def adapter(
 def policy_in_loop(
     task: TaskConfig, device: torch.device, num_envs: int, wrap: Callable | None = None, **make_kwargs
 ) -> Stepper:
-    """make_env's env driven by an L1 Flow actor of the task's default network (PolicyConfig; the
-    weights do not change the time) under TorchRL's ``MultiStepActorWrapper``, as the evaluator runs
-    it: one 2-NFE chunk per ``action_steps`` env steps, re-planned where an env resets. The raw side
-    it is compared with steps random actions, so the ratio prices the policy and the adapter together.
+    """make_env's env driven by an L1 Flow actor of the task's default network (PolicyConfig and
+    NetworkConfig; the weights do not change the time) under TorchRL's ``MultiStepActorWrapper``, as
+    the evaluator runs it: one 2-NFE chunk per ``action_steps`` env steps, re-planned where an env
+    resets. The raw side it is compared with steps random actions, so the ratio prices the policy and
+    the adapter together.
     ``wrap(actor)``: the module that acts instead (a fine-tuning algorithm's actor around the flow)."""
     from torchrl.envs.utils import ExplorationType, set_exploration_type
     from torchrl.modules import MultiStepActorWrapper
 
-    from l1flow_rl.config import PolicyConfig
+    from l1flow_rl.config import NetworkConfig, PolicyConfig
     from l1flow_rl.workspace.build import build_actor
 
     env = make_env(task, num_envs=num_envs, device=device, **make_kwargs)
@@ -120,7 +121,8 @@ def policy_in_loop(
         else {k: tuple(v.shape[per_step:]) for k, v in obs.items()}
     )
     policy = dataclasses.asdict(PolicyConfig())
-    actor = build_actor(policy, shapes, env.action_spec.shape[-1]).to(device).eval()
+    network = dataclasses.asdict(NetworkConfig())
+    actor = build_actor(policy, shapes, env.action_spec.shape[-1], None, network).to(device).eval()
     if wrap is not None:
         actor = wrap(actor).to(device).eval()
     executor = MultiStepActorWrapper(actor, n_steps=policy["action_steps"], init_key="is_init")

@@ -40,7 +40,7 @@ from benchmarks.lib.common import (
     save_results,
 )
 from benchmarks.speed.bench_latency import ACTION_DIM, OBS_DIM, _image_setup
-from l1flow_rl.config import PolicyConfig
+from l1flow_rl.config import NetworkConfig, PolicyConfig
 from l1flow_rl.export.program import export_onnx, export_program, load_program
 from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.workspace.build import build_actor
@@ -50,10 +50,11 @@ RESULTS = RESULTS_DIR / "export_latency.json"
 
 def _actor(network: str, quick: bool) -> L1FlowActor:
     if network == "image":
-        policy, encoder, shapes = _image_setup(quick)
-        return build_actor(policy, shapes, ACTION_DIM, encoder).eval()
-    policy = PolicyConfig(down_dims=[16, 32]) if quick else PolicyConfig()
-    return build_actor(dataclasses.asdict(policy), {"state": (OBS_DIM,)}, ACTION_DIM).eval()
+        policy, encoder, net, shapes = _image_setup(quick)
+        return build_actor(policy, shapes, ACTION_DIM, encoder, net).eval()
+    net = NetworkConfig(down_dims=[16, 32]) if quick else NetworkConfig()
+    policy, net = dataclasses.asdict(PolicyConfig()), dataclasses.asdict(net)
+    return build_actor(policy, {"state": (OBS_DIM,)}, ACTION_DIM, None, net).eval()
 
 
 def _inputs(actor: L1FlowActor, seed: int = 0) -> tuple[torch.Tensor, ...]:

@@ -63,7 +63,7 @@ def rgb_setup(args: argparse.Namespace) -> tuple[torch.device, Any]:
 def run(args: argparse.Namespace) -> dict:
     device, cfg = rgb_setup(args)
     shapes = {"state": (STATE_DIM,), "rgb": (3, SIDE, SIDE)}
-    actor = build_actor(cfg.policy, shapes, ACTION_DIM, cfg.encoder).to(device).eval()
+    actor = build_actor(cfg.policy, shapes, ACTION_DIM, cfg.encoder, cfg.network).to(device).eval()
     assert actor.sampler.nfe == 2, f"policy {cfg.policy.name!r} is not the 2-NFE L1 Flow policy"
     figures: dict = {
         "machine": machine_info(device),
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> dict:
             "image": [3, SIDE, SIDE],
             "crop_ratio": cfg.encoder.crop_ratio,
             "obs_horizon": cfg.policy.obs_horizon,
-            "down_dims": list(cfg.policy.down_dims),
+            "down_dims": list(cfg.network.down_dims),
             "rounds": args.rounds,
             "parameters": sum(p.numel() for p in actor.parameters()),
         },
@@ -97,11 +97,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=30)
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     parser.add_argument("--out", default="benchmarks/results/image_latency.json")
-    parser.add_argument("overrides", nargs="*", help="config overrides, e.g. policy.down_dims=[32,64,128]")
+    parser.add_argument("overrides", nargs="*", help="config overrides, e.g. network.down_dims=[32,64,128]")
     args = parse_args(parser, argv)
     if args.quick:
         args.rounds, args.batches = 2, [1]
-        args.overrides = ["policy.down_dims=[16,32]", *args.overrides]
+        args.overrides = ["network.down_dims=[16,32]", *args.overrides]
     figures = run(args)
     rows = []
     for name, block in figures["inference"].items():

@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> dict:
     device, cfg = rgb_setup(args)
     pcfg = cfg.policy
     shapes = {"state": (STATE_DIM,), "rgb": (3, SIDE, SIDE)}
-    actor = build_actor(pcfg, shapes, ACTION_DIM, cfg.encoder).to(device)
+    actor = build_actor(pcfg, shapes, ACTION_DIM, cfg.encoder, cfg.network).to(device)
     loss_fn = build_loss(actor, pcfg)
     trainer = Trainer(actor, loss_fn, total_steps=10**6, lr=1e-4, warmup_steps=0)
     with tempfile.TemporaryDirectory() as tmp:
@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> dict:
             "pred_horizon": pcfg.pred_horizon,
             "image": [3, SIDE, SIDE],
             "crop_ratio": cfg.encoder.crop_ratio,
-            "down_dims": list(pcfg.down_dims),
+            "down_dims": list(cfg.network.down_dims),
             "steps_in_storage": args.episodes * args.length,
             "prefetch": args.prefetch,
             "rounds": args.rounds,
@@ -130,11 +130,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--prefetch", type=int, default=0, help="train.prefetch (the train job's default: 0)")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     parser.add_argument("--out", default="benchmarks/results/image_train.json")
-    parser.add_argument("overrides", nargs="*", help="config overrides, e.g. policy.down_dims=[32,64,128]")
+    parser.add_argument("overrides", nargs="*", help="config overrides, e.g. network.down_dims=[32,64,128]")
     args = parse_args(parser, argv)
     if args.quick:
         args.batch, args.rounds, args.episodes, args.length = 2, 2, 2, 20
-        args.overrides = ["policy.down_dims=[16,32]", *args.overrides]
+        args.overrides = ["network.down_dims=[16,32]", *args.overrides]
     figures = run(args)
     rows = [
         {"arm": k, "step_ms": v["wall_ms"], "cpu_ms": v["cpu_ms"], "samples/s": figures["samples_per_s"][k]}

@@ -1,12 +1,12 @@
 """Per-chunk inference latency of one network under every sampler, beside the peers' own path and the
 floor, plus the training-step time of each loss, all in one run (the paper's speed claim).
 
-``--network state`` (default): the network ``l1flow-rl train`` builds by default (``PolicyConfig``:
-ConditionalUnet1D, down_dims 64/128/256, To=2, H=16, K=8) for a ManiSkill-PushCube-sized state
-(D=35, A=4). ``--network image``: the one ``l1flow-rl train task=maniskill_pushcube_rgb`` builds
-(the same UNet behind the ResNet-18 GroupNorm encoder, 128x128 RGB cropped to 0.9, plus a 25-D
-state), saved as ``latency_image.json``. Weights do not change the time, so one network serves every
-sampler.
+``--network state`` (default): the network ``l1flow-rl train`` builds by default (``PolicyConfig``
+and ``NetworkConfig``: ConditionalUnet1D, down_dims 64/128/256, To=2, H=16, K=8) for a
+ManiSkill-PushCube-sized state (D=35, A=4). ``--network image``: the one ``l1flow-rl train
+task=maniskill_pushcube_rgb`` builds (the same UNet behind the ResNet-18 GroupNorm encoder, 128x128
+RGB cropped to 0.9, plus a 25-D state), saved as ``latency_image.json``. Weights do not change the
+time, so one network serves every sampler.
 
 Inference, one action chunk through ``L1FlowActor`` (observation in, executable window out), at
 batch 1 and 64:
@@ -40,7 +40,7 @@ from tensordict import TensorDict
 
 from benchmarks.lib.common import format_table, interleaved, machine_info, parse_args, save_results
 from l1flow_rl import DiffusionLoss, FlowMatchingLoss, L1FlowActor, L1FlowLoss, RegressionLoss
-from l1flow_rl.config import PolicyConfig
+from l1flow_rl.config import NetworkConfig, PolicyConfig
 from l1flow_rl.workspace.build import build_actor as build_policy_actor
 
 OBS_DIM, ACTION_DIM, TRAIN_BATCH = 35, 4, 256
@@ -69,17 +69,20 @@ TRAINED = {
 IMAGE_TASK = "maniskill_pushcube_rgb"
 
 
-def _image_setup(quick: bool = False) -> tuple[dict, dict, dict]:
-    """The image task's policy and encoder configs as the train job composes them, and its shapes."""
+def _image_setup(quick: bool = False) -> tuple[dict, dict, dict, dict]:
+    """The image task's policy, encoder and network configs as the train job composes them, and its
+    shapes."""
     from omegaconf import OmegaConf
 
     from benchmarks.speed.bench_image_latency import SIDE, STATE_DIM
     from l1flow_rl.commands.cli import compose_config
 
     overrides = [f"task={IMAGE_TASK}", "encoder=resnet18_gn"]
-    cfg = compose_config([*overrides, *(["policy.down_dims=[16,32]"] if quick else [])])
-    policy, encoder = (OmegaConf.to_container(c, resolve=True) for c in (cfg.policy, cfg.encoder))
-    return policy, encoder, {"state": (STATE_DIM,), "rgb": (3, SIDE, SIDE)}
+    cfg = compose_config([*overrides, *(["network.down_dims=[16,32]"] if quick else [])])
+    policy, encoder, network = (
+        OmegaConf.to_container(c, resolve=True) for c in (cfg.policy, cfg.encoder, cfg.network)
+    )
+    return policy, encoder, network, {"state": (STATE_DIM,), "rgb": (3, SIDE, SIDE)}
 
 
 def build_actor(
@@ -88,15 +91,22 @@ def build_actor(
     policy: PolicyConfig | None = None,
     network: str = "state",
     quick: bool = False,
+    network_cfg: NetworkConfig | None = None,
 ) -> L1FlowActor:
-    """The network as the train job builds it (state, or the image task's), with ``method``'s sampler."""
+    """The network as the train job builds it (state, or the image task's), with ``method``'s sampler.
+    ``policy`` and ``network_cfg`` (the state network's; default: the train job's defaults)."""
     sampler, options = SAMPLERS[method]
     if network == "image":
-        cfg, encoder, shapes = _image_setup(quick)
+        cfg, encoder, net, shapes = _image_setup(quick)
         cfg = {**cfg, "sampler": sampler, "sampler_kwargs": options}
-        return build_policy_actor(cfg, shapes, ACTION_DIM, encoder).to(device).eval()
+        return build_policy_actor(cfg, shapes, ACTION_DIM, encoder, net).to(device).eval()
     cfg = dataclasses.replace(policy or PolicyConfig(), sampler=sampler, sampler_kwargs=options)
-    return build_policy_actor(dataclasses.asdict(cfg), {"state": (OBS_DIM,)}, ACTION_DIM).to(device).eval()
+    net = dataclasses.asdict(network_cfg or NetworkConfig())
+    return (
+        build_policy_actor(dataclasses.asdict(cfg), {"state": (OBS_DIM,)}, ACTION_DIM, None, net)
+        .to(device)
+        .eval()
+    )
 
 
 def _observation(batch: int, device: torch.device, network: str = "state") -> TensorDict:
@@ -229,9 +239,9 @@ def run(args: argparse.Namespace) -> dict:
         "kind": args.network,
         "obs_dim": OBS_DIM if args.network == "state" else None,
         "action_dim": ACTION_DIM,
-        "down_dims": list(_image_setup(args.quick)[0]["down_dims"])
+        "down_dims": list(_image_setup(args.quick)[2]["down_dims"])
         if args.network == "image"
-        else list(PolicyConfig().down_dims),
+        else list(NetworkConfig().down_dims),
         "parameters": sum(p.numel() for p in actor.parameters()),
     }
     if args.network == "image":

@@ -36,7 +36,7 @@ if __package__ in (None, ""):  # run as a script
 from benchmarks.lib.common import format_table, interleaved, machine_info, parse_args, save_results
 from benchmarks.speed.bench_latency import OBS_DIM, _floor_call, diffusers_calls
 from benchmarks.speed.bench_latency import build_actor as build_state_actor
-from l1flow_rl.config import PolicyConfig
+from l1flow_rl.config import NetworkConfig, PolicyConfig
 from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.utils.value_checks import skip_value_checks
 from l1flow_rl.workspace.build import build_actor
@@ -85,16 +85,16 @@ class CapturedActor:
 
 
 def image_actor(device: torch.device, quick: bool) -> L1FlowActor:
-    policy = {**_plain_policy(), "down_dims": [32, 64, 128] if quick else [256, 512, 1024]}
+    network = {**_plain(NetworkConfig()), "down_dims": [32, 64, 128] if quick else [256, 512, 1024]}
     shapes = {"agent_pos": (IMAGE_STATE_DIM,), "img": (3, IMAGE_SIDE, IMAGE_SIDE)}
     encoder = {"name": "resnet18_gn", "crop_ratio": 0.875}
-    return build_actor(policy, shapes, IMAGE_ACTION_DIM, encoder).to(device).eval()
+    return build_actor(_plain(PolicyConfig()), shapes, IMAGE_ACTION_DIM, encoder, network).to(device).eval()
 
 
-def _plain_policy() -> dict[str, Any]:
+def _plain(config: PolicyConfig | NetworkConfig) -> dict[str, Any]:
     import dataclasses
 
-    return dataclasses.asdict(PolicyConfig())
+    return dataclasses.asdict(config)
 
 
 def observation(name: str, device: torch.device) -> TensorDict:

@@ -18,9 +18,10 @@ so a step that never waits for the device (no host synchronisation) can overlap 
 host work with this one's GPU work, as in the train loop. Reported: milliseconds and samples per
 second per arm, and ``trainer_over_model`` (samples/s of ``trainer`` over ``model``; goal >= 0.9).
 
-Networks: ``state``, the default ``PolicyConfig`` (UNet 64/128/256) on a 35-dim state; ``image``,
-the paper-size image network: Diffusion Policy's PushT image setting (96x96 RGB cropped to 84,
-2-dim agent position, 2-dim actions), the ResNet-18 GroupNorm encoder and a UNet 256/512/1024.
+Networks: ``state``, the default ``PolicyConfig`` and ``NetworkConfig`` (UNet 64/128/256) on a
+35-dim state; ``image``, the paper-size image network: Diffusion Policy's PushT image setting (96x96
+RGB cropped to 84, 2-dim agent position, 2-dim actions), the ResNet-18 GroupNorm encoder and a UNet
+256/512/1024.
 
     python -m benchmarks.speed.bench_train_throughput [--quick] [--device cuda]
         [--networks state image] [--amp off on] [--compile off on]
@@ -44,7 +45,7 @@ if __package__ in (None, ""):  # run as a script
 
 from benchmarks.lib.common import format_table, interleaved, machine_info, parse_args, save_results
 from benchmarks.speed.bench_image_train import resident_batch
-from l1flow_rl.config import PolicyConfig
+from l1flow_rl.config import NetworkConfig, PolicyConfig
 from l1flow_rl.data import make_chunk_buffer
 from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.workspace.build import build_actor, build_loss
@@ -64,19 +65,22 @@ class Network:
     action_dim: int
     policy: dict[str, Any]
     encoder: dict[str, Any] | None
+    network: dict[str, Any]
 
 
 def networks(quick: bool) -> dict[str, Network]:
     policy = dataclasses.asdict(PolicyConfig())
-    image_policy = {**policy, "down_dims": [32, 64, 128] if quick else IMAGE_DOWN_DIMS}
+    network = dataclasses.asdict(NetworkConfig())
+    image_network = {**network, "down_dims": [32, 64, 128] if quick else IMAGE_DOWN_DIMS}
     return {
-        "state": Network("state", {"state": (STATE_DIM,)}, STATE_ACTION_DIM, policy, None),
+        "state": Network("state", {"state": (STATE_DIM,)}, STATE_ACTION_DIM, policy, None, network),
         "image": Network(
             "image",
             {"agent_pos": (IMAGE_STATE_DIM,), "img": (3, IMAGE_SIDE, IMAGE_SIDE)},
             IMAGE_ACTION_DIM,
-            image_policy,
+            policy,
             {"name": "resnet18_gn", "crop_ratio": IMAGE_CROP_RATIO},
+            image_network,
         ),
     }
 
@@ -140,7 +144,7 @@ def repeat(fn: Callable[[], object], times: int) -> Callable[[], None]:
 def measure(net: Network, amp: bool, compile: bool, args: argparse.Namespace) -> dict[str, Any]:
     device = torch.device(args.device)
     torch.manual_seed(0)
-    actor = build_actor(net.policy, net.obs_shapes, net.action_dim, net.encoder).to(device)
+    actor = build_actor(net.policy, net.obs_shapes, net.action_dim, net.encoder, net.network).to(device)
     trainer = Trainer(
         actor,
         build_loss(actor, net.policy),
@@ -203,11 +207,11 @@ def run(args: argparse.Namespace, out: str | None = None) -> dict[str, Any]:
     figures["networks"] = {}
     for name in args.networks:
         net = networks(args.quick)[name]
-        probe = build_actor(net.policy, net.obs_shapes, net.action_dim, net.encoder)
+        probe = build_actor(net.policy, net.obs_shapes, net.action_dim, net.encoder, net.network)
         block: dict[str, Any] = {
             "obs_shapes": {k: list(v) for k, v in net.obs_shapes.items()},
             "action_dim": net.action_dim,
-            "down_dims": list(net.policy["down_dims"]),
+            "down_dims": list(net.network["down_dims"]),
             "encoder": (net.encoder or {"name": "state"})["name"],
             "parameters": sum(p.numel() for p in probe.parameters()),
             "settings": {},

@@ -36,7 +36,7 @@ QUICK = [
     "demos.num=2",
     "train.steps=4",
     "train.batch_size=8",
-    "policy.down_dims=[16,32]",
+    "network.down_dims=[16,32]",
     "eval.episodes=2",
     "eval.num_envs=1",
 ]

@@ -124,12 +124,14 @@ class Start:
 
 def load_start(cfg: DictConfig, device: torch.device) -> Start:
     """The BC checkpoint ``cfg.checkpoint``, checked against the task; ``cfg`` takes its network
-    (``policy``, ``encoder``) and, unless the command line sets them, its data (:func:`adopt_start_data`)."""
+    (``policy``, ``network``, ``encoder``) and, unless the command line sets them, its data (:func:`adopt_start_data`)."""
     state = load_checkpoint(cfg.checkpoint)
     actor, bc_cfg = load_actor(cfg.checkpoint, use_ema=True, map_location=device)
     _check_task(bc_cfg, cfg, str(cfg.checkpoint))
     with open_dict(cfg):  # the network is the checkpoint's
         cfg.policy = OmegaConf.merge(cfg.policy, bc_cfg.policy)
+        if bc_cfg.get("network") is not None:
+            cfg.network = OmegaConf.merge(cfg.network, bc_cfg.network)
         if bc_cfg.get("encoder") is not None and "encoder" in cfg:
             cfg.encoder = OmegaConf.merge(cfg.encoder, bc_cfg.encoder)
     given = [*overrides_under("demos"), *overrides_under("data")]
