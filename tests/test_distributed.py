@@ -106,16 +106,18 @@ def test_rank0_failure_and_long_rank0_work_under_torchrun(tmp_path):
 
 
 def test_train_under_torchrun_ends_both_ranks_with_rank0s_error(tmp_path):
-    """Rank 0 cannot create data_dir (demonstrations are made there by rank 0 only): both processes
-    stop with that error instead of rank 1 waiting for the dataset."""
+    """Rank 0 cannot make the demonstrations' folder (demonstrations are made there by rank 0 only):
+    both processes stop with that error instead of rank 1 waiting for the dataset."""
     pytest.importorskip("mani_skill", reason="the task's expert is ManiSkill's motion planner")
-    bad = "/proc/no_such_dir/demos"  # /proc refuses new directories, even to root
+    data_dir = tmp_path / "data"  # writable, so the config check passes it ...
+    data_dir.mkdir()
+    (data_dir / "maniskill").write_text("")  # ... but the expert's folder is blocked by a file
     proc = _torchrun(
         [
             "-m",
             "l1flow_rl.commands.cli",
             "train",
-            f"data_dir={bad}",
+            f"data_dir={data_dir}",
             f"run_dir={tmp_path / 'run'}",
             "device=cpu",
         ],
@@ -123,9 +125,9 @@ def test_train_under_torchrun_ends_both_ranks_with_rank0s_error(tmp_path):
     )
     assert proc.returncode != 0
     log = proc.stdout + proc.stderr
-    assert "[rank0]: FileNotFoundError" in log, log[-3000:]
+    assert "[rank0]: NotADirectoryError" in log, log[-3000:]
     assert (
         "[rank1]: l1flow_rl.workspace.distributed.RankFailedError: rank 0 failed while making or finding "
-        "the demonstrations: FileNotFoundError" in log
+        "the demonstrations: NotADirectoryError" in log
     ), log[-3000:]
     assert "Connection closed by peer" not in log

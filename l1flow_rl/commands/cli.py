@@ -161,13 +161,18 @@ def _run_dir_overrides(command: str, overrides: Sequence[str], multirun: bool) -
 
 
 def compose_config(
-    overrides: Sequence[str] = (), command: str = "train", config_dir: str | None = None
+    overrides: Sequence[str] = (),
+    command: str = "train",
+    config_dir: str | None = None,
+    paths: bool = False,
 ) -> DictConfig:
     """The config ``l1flow-rl COMMAND OVERRIDES`` would run with, validated for ``command``.
 
     Raises hydra's or OmegaConf's error for a bad key or type, and
-    :class:`~l1flow_rl.config.validate.ConfigValidationError` for values that cannot work.
-    ``run_dir`` is filled with the run directory the command would use.
+    :class:`~l1flow_rl.config.validate.ConfigValidationError` for values that cannot work (with
+    ``paths``, as the command does, also for path fields that name nothing usable: a checkpoint that
+    does not exist, a run directory that cannot be made). ``run_dir`` is filled with the run directory
+    the command would use.
     """
     check_moved_keys(overrides)
     overrides = [*open_dict_overrides(overrides), *_run_dir_overrides(command, overrides, multirun=False)]
@@ -177,7 +182,7 @@ def compose_config(
     finally:
         GlobalHydra.instance().clear()
     cfg = _app_config(full)
-    validate_config(cfg, command)
+    validate_config(cfg, command, paths=paths)
     return cfg
 
 
@@ -291,8 +296,9 @@ def _one_line(err: BaseException) -> str:
 def _invalid(command: str, err: Exception) -> int:
     if _debug():
         raise err
-    if isinstance(err, ConfigValidationError):  # a list of problems, one a line, by design
-        print(f"l1flow-rl {command}: invalid config: {err}", file=sys.stderr)
+    if isinstance(err, ConfigValidationError):  # one line per problem, each naming its key
+        for problem in err.problems:
+            print(f"l1flow-rl {command}: invalid config: {problem}", file=sys.stderr)
         return 2
     cause = f": {_one_line(err.__cause__)}" if err.__cause__ else ""
     print(f"l1flow-rl {command}: invalid config: {_one_line(err)}{cause}", file=sys.stderr)
@@ -379,12 +385,13 @@ def _run(command: str, hydra: Any, hargs: Any, overrides: list[str]) -> int:
         *_run_dir_overrides(command, overrides, multirun),
         *_secondary_rank_overrides(overrides),
     ]
-    # Compose and validate every job before the first one starts.
+    # Compose and validate every job (its paths included) before the first one starts, so that a
+    # refused command line leaves no run directory and no lock behind.
     try:
         check_moved_keys(overrides)  # policy.down_dims=... from before the network group: name the new key
         for job in _sweep_jobs(overrides) if multirun else [overrides]:
             full = _compose(hydra, job)
-            validate_config(_app_config(full), command)
+            validate_config(_app_config(full), command, paths=True)
     except _INVALID as err:
         return _invalid(command, err)
     if hargs.cfg or hargs.info:

@@ -9,7 +9,9 @@ from l1flow_rl.config.encoder import EncoderConfig
 from l1flow_rl.config.evaluation import EvalConfig
 from l1flow_rl.config.finetune import FinetuneConfig, OfflineConfig, OnlineConfig
 from l1flow_rl.config.network import NetworkConfig
+from l1flow_rl.config.path_fields import EXISTING, WRITABLE_DIR, path_field
 from l1flow_rl.config.policy import PolicyConfig
+from l1flow_rl.config.ranges import bounded
 from l1flow_rl.config.task import TaskConfig
 from l1flow_rl.config.toy import ToyConfig
 from l1flow_rl.config.train import TrainConfig
@@ -33,16 +35,20 @@ class AppConfig:
     finetune: FinetuneConfig = field(default_factory=FinetuneConfig)
     offline: OfflineConfig = field(default_factory=OfflineConfig)
     online: OnlineConfig = field(default_factory=OnlineConfig)
-    data_dir: str = "data"
+    # the demonstrations made by the task's expert, and caches beside a user's data.path
+    data_dir: str = path_field("data", kind=WRITABLE_DIR, commands=("train", "demos", "finetune"))
     # None: the run's own directory (hydra.run.dir, unique per run; see l1flow_rl.commands.cli)
-    run_dir: str | None = None
-    checkpoint: str | None = None
+    run_dir: str | None = path_field(None, kind=WRITABLE_DIR)
+    # a .pt file, a run's checkpoints/ folder, or a pretrained folder written by l1flow-rl export
+    checkpoint: str | None = path_field(
+        None, kind=EXISTING, commands=(), required=("eval", "export", "finetune")
+    )
     teacher: str | None = None  # distillation (policy=consistency|onedp_d|onedp_s): the teacher's checkpoint
     # l1flow-rl export: the pretrained folder to write, and whether it also gets the torch.export
     # program (policy.pt2) and the ONNX model (policy.onnx) of the 2-NFE call
-    out: str | None = None
+    out: str | None = path_field(None, kind=WRITABLE_DIR, commands=(), required=("export",))
     program: bool = False
     onnx: bool = False
     resume: bool = False
-    seed: int = 0
+    seed: int = bounded(0, ge=0, lt=2**32)
     device: str = "auto"  # auto | cpu | cuda

@@ -6,6 +6,9 @@ from dataclasses import dataclass
 
 from omegaconf import OmegaConf
 
+from l1flow_rl.config.path_fields import DATASET, path_field
+from l1flow_rl.config.ranges import bounded
+
 __all__ = [
     "PADDING_RULES",
     "QUALITIES",
@@ -26,14 +29,14 @@ QUALITY_LABELS = ("expert", "noisy", "recovered", "failed", "shifted")
 class DemosConfig:
     """Demonstration generation (ManiSkill motion planning, then replay into obs/control mode)."""
 
-    num: int = 100
+    num: int = bounded(100, ge=1)
     # Give up when this many planner attempts in a row fail (a task whose planner never succeeds).
-    max_consecutive_failures: int = 50
-    seed: int = 0
+    max_consecutive_failures: int = bounded(50, ge=1)
+    seed: int = bounded(0, ge=0, lt=2**32)
     quality: str = "expert"  # QUALITIES
     # Shifted replays of the successful episodes to fresh scenes, played in the simulator; the
-    # successful ones join the set labelled "shifted" (l1flow_rl.experts.object_shift). 0: none.
-    shifted_replays: int = 0
+    # successful ones join the set labelled "shifted" (l1flow_rl.experts.object_shift).
+    shifted_replays: int = bounded(0, ge=0, zero="none")
 
 
 #: how far chunks reach past an episode's ends (see l1flow_rl.data.chunks and
@@ -50,7 +53,7 @@ class DataConfig:
 
     # A user's own file or directory (robomimic .hdf5, Diffusion Policy .zarr, ManiSkill .h5,
     # LeRobot); None: the task's expert makes demos.num demonstrations under data_dir.
-    path: str | None = None
+    path: str | None = path_field(None, kind=DATASET, commands=("train", "finetune"))
     padding: str = "maniskill"  # maniskill | diffusion_policy (PADDING_RULES)
     # Keep only episodes with these quality labels (QUALITY_LABELS, stored per episode by
     # demos.quality=mixed); None: every episode.
@@ -77,11 +80,9 @@ def quality_problems(cfg, command: str) -> list[str]:
 
 
 def shifted_replay_problems(cfg) -> list[str]:
-    """demos.shifted_replays grows the expert's demonstrations: a count >= 0, and not beside a
-    user's file (data.path), which it would not grow."""
+    """demos.shifted_replays grows the expert's demonstrations, not a user's file (data.path); its
+    range (>= 0) is declared on the field."""
     shifted = OmegaConf.select(cfg, "demos.shifted_replays", default=0) or 0
-    if shifted < 0:
-        return [f"demos.shifted_replays={shifted}: expected a number of attempts >= 0"]
     path = OmegaConf.select(cfg, "data.path", default=None)
     if shifted and path:
         return [

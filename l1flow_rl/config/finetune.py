@@ -11,7 +11,9 @@ config validator asks.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+
+from l1flow_rl.config.ranges import bounded
 
 __all__ = [
     "CHECKS",
@@ -33,56 +35,63 @@ REWARD_KEYS = {"sparse": ("next", "terminated"), "recorded": ("next", "reward")}
 @dataclass
 class FinetuneConfig:
     algorithm: str = "qc"  # a registered algorithm: qc | fql | dsrl | dsrl_na | filtered_bc
-    gamma: float = 0.99
-    tau: float = 0.005  # Polyak rate of the target critics (TorchRL SoftUpdate)
-    lr: float = 3.0e-4  # Adam, every network
+    gamma: float = bounded(0.99, ge=0, le=1)  # discount per env step
+    tau: float = bounded(0.005, gt=0, le=1)  # Polyak rate of the target critics (TorchRL SoftUpdate)
+    lr: float = bounded(3.0e-4, gt=0)  # Adam, every network
     # an EMA that acts (Diffusion Policy's schedule, as BC trains): of the trained BC flow where the
     # acting module wraps it (filtered BC, QC; going on from the BC run's EMA counter), else of the
     # acting module (FQL's mu, DSRL's noise actor; from 0). 0: the raw weights act
-    ema_power: float = 0.0
-    batch_size: int = 256
-    num_critics: int = 2
+    ema_power: float = bounded(0.0, ge=0, zero="the raw weights act")
+    batch_size: int = bounded(256, ge=1)
+    num_critics: int = bounded(2, ge=1)
     # critics drawn at random for each batch's bootstrap (min/mean over them; the actor climbs the mean
-    # of all): RLPD's 2 of 10 against the overestimation measured with 2 critics; 0: all of them
-    target_critics: int = 0
-    critic_hidden_dims: list[int] = field(default_factory=lambda: [512, 512, 512, 512])  # FQL/QC: 4 x 512
+    # of all): RLPD's 2 of 10 against the overestimation measured with 2 critics
+    target_critics: int = bounded(0, ge=0, zero="all of them")
+    critic_hidden_dims: list[int] = bounded(lambda: [512, 512, 512, 512], ge=1, each=True)  # FQL/QC: 4 x 512
     q_agg: str = "mean"  # mean | min over the target critics (QC, FQL: mean; SAC/DSRL: min)
-    rl_horizon: int = 0  # executed actions per critic chunk; 0: the policy's action_steps (QC: all of them)
+    # executed actions per critic chunk (QC: all of them)
+    rl_horizon: int = bounded(0, ge=0, zero="the policy's action_steps")
     # sparse (success at the terminal step) | recorded (the env's reward), see REWARD_KEYS
     reward: str = "sparse"
-    log_every: int = 50  # updates
+    log_every: int = bounded(50, ge=1)  # updates
 
 
 @dataclass
 class OfflineConfig:
-    steps: int = 0  # updates on the demonstrations before any env step (the "offline" arm)
-    eval_every: int = 0  # updates; 0: no validation during the offline phase
+    # updates on the demonstrations before any env step (the "offline" arm)
+    steps: int = bounded(0, ge=0, zero="none")
+    eval_every: int = bounded(0, ge=0, zero="no validation during the offline phase")  # updates
     # updates; a killed offline phase resumes from here (a Square run lost 6,934 of 8,000 updates when
-    # only the phase's end was saved). 0: only at the phase's end
-    checkpoint_every: int = 1000
+    # only the phase's end was saved)
+    checkpoint_every: int = bounded(1000, ge=0, zero="only at the phase's end")
 
 
 @dataclass
 class OnlineConfig:
-    steps: int = 0  # env steps collected by the fine-tuned policy (0: offline only)
-    warmup_steps: int = 5000  # QC/RLPD: env steps with the starting policy before the first update
-    updates_per_step: float = 1.0  # QC/FQL: 1 update per env step
-    num_envs: int = 2  # collector worker envs
-    # env steps per collection round (all envs together); 0: one full-length episode per env
-    frames_per_round: int = 0
-    offline_fraction: float = 0.5  # RLPD/QC: 50/50 offline/online batches (OfflineToOnlineReplayBuffer)
+    # env steps collected by the fine-tuned policy
+    steps: int = bounded(0, ge=0, zero="offline only")
+    # QC/RLPD: env steps with the starting policy before the first update
+    warmup_steps: int = bounded(5000, ge=0)
+    # QC/FQL: 1 update per env step
+    updates_per_step: float = bounded(1.0, ge=0, zero="collect without updating")
+    num_envs: int = bounded(2, ge=1)  # collector worker envs
+    # env steps per collection round (all envs together), a multiple of num_envs
+    frames_per_round: int = bounded(0, ge=0, zero="one full-length episode per env")
+    # RLPD/QC: 50/50 offline/online batches (OfflineToOnlineReplayBuffer)
+    offline_fraction: float = bounded(0.5, ge=0, lt=1)
     seed_with_offline: bool = False  # FQL's alternative: one buffer the demonstrations seed
-    capacity: int = 0  # online steps kept; 0: all of them
-    eval_every: int = 0  # env steps; 0: validate only at the start and the end
-    checkpoint_every: int = 10_000  # env steps; an online checkpoint also dumps the replay buffer
+    capacity: int = bounded(0, ge=0, zero="all of them")  # online steps kept
+    eval_every: int = bounded(0, ge=0, zero="validate only at the start and the end")  # env steps
+    # env steps; an online checkpoint also dumps the replay buffer
+    checkpoint_every: int = bounded(10_000, ge=0, zero="only at the end")
     # the first collection round's seeds (each round takes the next 100,000): apart from the validation
     # (eval.val_seed, 10,000 on) and test (eval.seed, 100,000 on) seeds, so no test episode is trained on
-    env_seed: int = 1_000_000
+    env_seed: int = bounded(1_000_000, ge=0, lt=2**32)
     # std of Gaussian noise on every executed action while collecting (TorchRL's AdditiveGaussianModule,
     # kept inside the action bounds; validation and test act without it). PickCube's mixed-50 start never
     # solves 55 of 100 starts under 8 draws of its own sampler noise; std 0.02 reaches 18 of them
-    # (benchmarks/results/noise_draw_maniskill_pickcube_mixed50b*.json). 0: the policy's own noise only.
-    action_noise: float = 0.0
+    # (benchmarks/results/noise_draw_maniskill_pickcube_mixed50b*.json).
+    action_noise: float = bounded(0.0, ge=0, zero="the policy's own noise only")
 
 
 def round_frames(cfg) -> int:
@@ -92,33 +101,22 @@ def round_frames(cfg) -> int:
     return int(on.frames_per_round) or int(on.num_envs) * int(cfg.task.max_episode_steps)
 
 
-def _check_ema(cfg, command: str) -> list[str]:
-    ft = cfg.get("finetune")
-    if command != "finetune" or ft is None or ft.get("ema_power", 0.0) >= 0.0:
-        return []
-    return [f"finetune.ema_power={ft.ema_power}: expected 0 (no EMA) or a positive power (DP's: 0.75)"]
-
-
-def _check_online(cfg, command: str) -> list[str]:
-    """Online settings that would otherwise fail only after the offline phase."""
-    on = cfg.get("online")
-    if command != "finetune" or on is None or on.steps <= 0:
-        return []
+def _check_finetune(cfg, command: str) -> list[str]:
+    """Relations between fine-tuning fields (each field's own range is declared beside it): the
+    critics drawn for a bootstrap, and collection rounds that every env steps through alike."""
+    ft, on = cfg.get("finetune"), cfg.get("online")
     problems = []
-    frames = round_frames(cfg) if on.num_envs >= 1 else 0
-    if on.num_envs < 1 or frames < 1 or frames % on.num_envs:
+    if ft is not None and ft.get("target_critics", 0) > ft.get("num_critics", 1) >= 1:
         problems.append(
-            f"online.frames_per_round={on.frames_per_round} must be a positive multiple of "
-            f"online.num_envs={on.num_envs} (every env steps as often per round)"
+            f"finetune.target_critics={ft.target_critics}: expected at most finetune.num_critics="
+            f"{ft.num_critics} (0: all of them)"
         )
-    if not 0.0 <= on.offline_fraction < 1.0:
-        problems.append(f"online.offline_fraction={on.offline_fraction}: expected a value in [0, 1)")
-    if on.action_noise < 0:
-        problems.append(f"online.action_noise={on.action_noise}: expected a std >= 0")
-    if on.warmup_steps < 0 or on.updates_per_step < 0:
+    if command != "finetune" or on is None or on.steps <= 0 or on.num_envs < 1 or on.frames_per_round < 0:
+        return problems  # a count out of its range is reported by the range check
+    if round_frames(cfg) % on.num_envs:
         problems.append(
-            f"online.warmup_steps={on.warmup_steps}, online.updates_per_step={on.updates_per_step}: "
-            "expected >= 0"
+            f"online.frames_per_round={on.frames_per_round}: expected a multiple of "
+            f"online.num_envs={on.num_envs} (every env steps as often per round)"
         )
     return problems
 
@@ -130,4 +128,4 @@ CHOICES = {
     "finetune.q_agg": lambda: ("mean", "min"),
     "finetune.reward": lambda: tuple(REWARD_KEYS),
 }
-CHECKS = (_check_online, _check_ema)
+CHECKS = (_check_finetune,)

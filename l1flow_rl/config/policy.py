@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from l1flow_rl.config.ranges import bounded
+
 __all__ = ["PolicyConfig"]
 
 
@@ -16,9 +18,10 @@ class PolicyConfig:
     sampler: str = "two_step"  # two_step | euler | velocity_euler | ddpm | ddim | direct
     sampler_kwargs: dict = field(default_factory=dict)
     loss_kwargs: dict = field(default_factory=dict)
-    obs_horizon: int = 2
-    pred_horizon: int = 16
-    action_steps: int = 8
+    # To, H, K: observed steps, predicted chunk, executed steps (To - 1 + K <= H)
+    obs_horizon: int = bounded(2, ge=1)
+    pred_horizon: int = bounded(16, ge=1)
+    action_steps: int = bounded(8, ge=1)
     normalizer: str = "limits"  # actions: limits | gaussian | identity
     # Observations: limits blows up near-constant state dims (a 0.003-wide range scaled to [-1, 1]),
     # so states pass through raw by default, as in ManiSkill's baseline.

@@ -44,8 +44,10 @@ __all__ = [
     "bounded",
     "declared_ranges",
     "field_range",
+    "is_numeric",
     "range_problems",
     "register_subschema",
+    "walk_fields",
 ]
 
 #: the dataclass field metadata key that holds a field's :class:`Range`
@@ -195,31 +197,59 @@ def declared_ranges(schema: type, prefix: str = "") -> Iterator[tuple[str, Range
         yield key, field_range(f), hint
 
 
+def is_numeric(hint: Any) -> bool:
+    """Whether a field of type ``hint`` holds numbers (``int``, ``float``, a list of them, or either
+    ``| None``; not ``bool``): the fields that must declare a range."""
+    if hint in (int, float):
+        return True
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    origin = typing.get_origin(hint)
+    if origin in (list, tuple):
+        return bool(args) and all(a in (int, float) for a in args if a is not Ellipsis)
+    if args and origin is not None and len(args) == 1 and len(typing.get_args(hint)) == 2:  # X | None
+        return is_numeric(args[0])
+    return False
+
+
 def _plain(node: Any) -> Any:
     if isinstance(node, (DictConfig, ListConfig)):
         return OmegaConf.to_container(node, resolve=True)
     return node
 
 
-def range_problems(cfg: Any, schema: type, prefix: str = "", root: Any = None) -> list[str]:
-    """One line per value of ``cfg`` outside the range its ``schema`` field declares (nested
-    dataclasses and registered sub-schemas walked), each ``key=value: expected <range>``. Fields
-    absent from ``cfg`` are skipped."""
+def walk_fields(
+    cfg: Any, schema: type, prefix: str = "", root: Any = None
+) -> Iterator[tuple[str, dataclasses.Field, Any, Any]]:
+    """Every leaf field of ``schema`` that ``cfg`` holds, as ``(dotted key, field, type, value)``:
+    nested dataclasses walked, and a block registered with :func:`register_subschema` walked
+    against the schema it names for this ``cfg`` (what :func:`range_problems` checks; the schema
+    sweep test and the field reference walk the same)."""
     root = cfg if root is None else root
-    problems: list[str] = []
-    if cfg is None:
-        return problems
+    if cfg is None or not isinstance(cfg, (DictConfig, dict)):
+        return
     hints = _resolved_hints(schema)
     for f in dataclasses.fields(schema):
         key = f"{prefix}.{f.name}" if prefix else f.name
-        if not isinstance(cfg, (DictConfig, dict)) or f.name not in cfg:
+        if f.name not in cfg:
             continue
         value = cfg[f.name]
         sub = _SUBSCHEMAS.get(key)
         nested = sub(root) if sub is not None else _nested_schema(hints.get(f.name, f.type))
         if nested is not None:
-            problems += range_problems(value, nested, key, root)
-            continue
+            yield from walk_fields(value, nested, key, root)
+        else:
+            yield key, f, hints.get(f.name, f.type), value
+
+
+def range_problems(cfg: Any, schema: type, prefix: str = "", root: Any = None) -> list[str]:
+    """One line per value of ``cfg`` outside the range its ``schema`` field declares (nested
+    dataclasses and registered sub-schemas walked), each ``key=value: expected <range>``. Fields
+    absent from ``cfg`` are skipped."""
+    problems: list[str] = []
+    if isinstance(cfg, DictConfig):  # walked as plain dicts: a tenth of the cost of DictConfig look-ups
+        root = cfg if root is None else root
+        cfg = _plain(cfg)
+    for key, f, _, value in walk_fields(cfg, schema, prefix, root):
         rng = field_range(f)
         if rng is None:
             continue

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from omegaconf import OmegaConf
 
 from l1flow_rl.config.paths import CONFIG_DIR
+from l1flow_rl.config.ranges import bounded
 
 __all__ = ["CONTROL_KINDS", "TaskConfig", "load_task_config", "task_names"]
 
@@ -30,9 +31,9 @@ class TaskConfig:
     # delta | absolute. Decides how chunks are padded past an episode's end (delta: zero motion and
     # the last gripper command; absolute: repeat the last action); checked against the data's record.
     control: str = "delta"
-    max_episode_steps: int = 100
+    max_episode_steps: int = bounded(100, ge=1)
     reward_mode: str = "normalized_dense"
-    image_size: int = 128
+    image_size: int = bounded(128, ge=1)
     # Low-dimensional entries that form the "state" observation, in order (robosuite: robomimic's
     # keys); empty means the simulator's default state.
     state_keys: list[str] = field(default_factory=list)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+
+from l1flow_rl.config.ranges import bounded
 
 __all__ = ["LOGGERS", "TrainConfig"]
 
@@ -12,22 +14,24 @@ LOGGERS = ("csv", "tensorboard", "wandb")
 
 @dataclass
 class TrainConfig:
-    steps: int = 3000
-    batch_size: int = 256
-    lr: float = 1e-4
-    betas: list[float] = field(default_factory=lambda: [0.95, 0.999])
-    weight_decay: float = 1e-6
-    warmup_steps: int = 500
-    ema_power: float = 0.75
-    grad_clip: float = 0.0  # 0 disables
+    steps: int = bounded(3000, ge=1)
+    batch_size: int = bounded(256, ge=1)
+    lr: float = bounded(1e-4, gt=0)
+    betas: list[float] = bounded(lambda: [0.95, 0.999], ge=0, lt=1, each=True)  # Adam's two betas
+    weight_decay: float = bounded(1e-6, ge=0)
+    warmup_steps: int = bounded(500, ge=0)
+    # Diffusion Policy's EMA schedule: decay 1 - (1 + step) ** -ema_power
+    ema_power: float = bounded(0.75, ge=0, zero="no averaging: the raw weights")
+    grad_clip: float = bounded(0.0, ge=0, zero="no clipping")
     amp: bool = False
     compile: bool = False
-    checkpoint_every: int = 1000
-    log_every: int = 50
-    eval_every: int = 0  # 0: evaluate only at the end
+    checkpoint_every: int = bounded(1000, ge=0, zero="only at the end")
+    log_every: int = bounded(50, ge=0, zero="only at the end")
+    eval_every: int = bounded(0, ge=0, zero="evaluate only at the end")
     logger: str = "csv"  # LOGGERS: csv | tensorboard | wandb
     project: str = "l1flow-rl"  # W&B project
     group: str | None = None  # W&B group (e.g. one per sweep)
     # The logger's run name; None: the run directory's name on W&B, "train" (its log folder) otherwise.
     run_name: str | None = None
-    prefetch: int = 0  # batches sampled ahead by threads; 0 keeps resume bit-exact
+    # batches sampled ahead by threads
+    prefetch: int = bounded(0, ge=0, zero="none, which keeps resume bit-exact")

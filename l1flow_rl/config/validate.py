@@ -34,10 +34,14 @@ from typing import Any, get_args
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from l1flow_rl.config import finetune
+from l1flow_rl.config.app import AppConfig
 from l1flow_rl.config.data import PADDING_RULES, quality_problems
 from l1flow_rl.config.network import network_problems
+from l1flow_rl.config.path_fields import path_problems
+from l1flow_rl.config.ranges import range_problems
 from l1flow_rl.config.task import CONTROL_KINDS, TaskConfig
 from l1flow_rl.config.train import LOGGERS
+from l1flow_rl.data.loading import dataset_problem
 from l1flow_rl.envs.registry import registered_simulators
 from l1flow_rl.evaluation.plan import eval_config_problems
 from l1flow_rl.evaluation.protocols import protocol_names
@@ -45,6 +49,7 @@ from l1flow_rl.finetune.registry import finetune_problems
 from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_problems, samplers_for
 from l1flow_rl.modules.normalizer import NormalizerMode
 from l1flow_rl.networks.encoders import encoder_names, encoder_problems
+from l1flow_rl.networks.encoders.resnet18_gn import WIDTHS
 from l1flow_rl.networks.mlp import ACTIVATIONS
 from l1flow_rl.networks.registry import network_names
 from l1flow_rl.objectives.registry import get_loss, loss_names, loss_problems
@@ -56,6 +61,7 @@ __all__ = [
     "COMMAND_SCOPES",
     "ConfigValidationError",
     "check_policy",
+    "config_problems",
     "register_check",
     "register_choices",
     "validate_config",
@@ -65,7 +71,16 @@ Check = Callable[[DictConfig, str], list[str]]
 
 
 class ConfigValidationError(ValueError):
-    """One or more config fields hold values that cannot work; the message lists each."""
+    """One or more config fields hold values that cannot work; the message lists each, and
+    ``problems`` holds them, one line each (the CLI prints one line per problem)."""
+
+    def __init__(self, problems: str | list[str]) -> None:
+        self.problems = [problems] if isinstance(problems, str) else list(problems)
+        super().__init__(
+            f"{len(self.problems)} config value(s) cannot work:\n  " + "\n  ".join(self.problems)
+            if len(self.problems) > 1 or not isinstance(problems, str)
+            else problems
+        )
 
 
 #: What each sub-command builds from the config, hence what must be checked for it:
@@ -189,8 +204,34 @@ def _check_val_sampler(cfg: DictConfig, command: str) -> list[str]:
     return check_policy(method, sampler_field="eval.val_sampler")
 
 
+def _check_horizons(cfg: DictConfig, command: str) -> list[str]:
+    """The executed window [To - 1, To - 1 + K) lies inside the predicted chunk H (what
+    :class:`~l1flow_rl.modules.policy.ChunkPolicy` requires), once each horizon is in its range."""
+    p = cfg.get("policy") if isinstance(cfg, DictConfig) else None
+    if p is None or not all(isinstance(p.get(k), int) and p.get(k) >= 1 for k in _HORIZONS):
+        return []
+    if p.obs_horizon - 1 + p.action_steps <= p.pred_horizon:
+        return []
+    return [
+        f"policy.pred_horizon={p.pred_horizon}: expected >= policy.obs_horizon - 1 + policy.action_steps = "
+        f"{p.obs_horizon - 1 + p.action_steps} (the executed steps must fit the predicted chunk)"
+    ]
+
+
+_HORIZONS = ("obs_horizon", "pred_horizon", "action_steps")
+
+
+def _check_betas(cfg: DictConfig, command: str) -> list[str]:
+    betas = _select(cfg, "train.betas")
+    if betas is None or len(betas) == 2:
+        return []
+    return [f"train.betas={list(betas)}: expected two numbers (Adam's beta1, beta2)"]
+
+
 #: The rules that read more than one field, each defined beside what it validates.
 BUILTIN_CHECKS: tuple[Check, ...] = (
+    _check_horizons,
+    _check_betas,
     _check_val_sampler,
     eval_config_problems,
     *finetune.CHECKS,
@@ -219,20 +260,61 @@ def _check_task(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
     ]
 
 
-def validate_config(cfg: DictConfig, command: str = "train") -> None:
-    """Raise :class:`ConfigValidationError` listing every field of ``cfg`` that cannot work for
-    ``command`` (see :data:`COMMAND_SCOPES`)."""
+def _check_kernel(cfg: DictConfig) -> list[str]:
+    """The UNet's convolutions keep the chunk's length (padding ``kernel_size // 2``) only with an odd
+    kernel; an even one fails at the first residual sum."""
+    kernel = _select(cfg, "network.kernel_size")
+    if _select(cfg, "network.name") != "unet" or not isinstance(kernel, int) or kernel < 1 or kernel % 2:
+        return []
+    return [f"network.kernel_size={kernel}: expected an odd number (same-length convolutions)"]
+
+
+def _check_encoder(cfg: DictConfig, scopes: frozenset[str]) -> list[str]:
+    """``encoder.group_size`` divides the image trunk's channels (GroupNorm), where the trunk is
+    built: ``resnet18_gn`` named, or ``auto`` on a task that observes images."""
+    size, name = _select(cfg, "encoder.group_size"), _select(cfg, "encoder.name")
+    if (
+        "network" not in scopes
+        or not isinstance(size, int)
+        or size < 1
+        or name not in ("resnet18_gn", "auto")
+    ):
+        return []
+    if name == "auto" and _select(cfg, "task.obs_mode") == "state":
+        return []
+    if all(w % size == 0 for w in WIDTHS):
+        return []
+    return [
+        f"encoder.group_size={size}: expected a divisor of the image trunk's channels {list(WIDTHS)} "
+        "(channels per GroupNorm group), e.g. 16"
+    ]
+
+
+def config_problems(cfg: DictConfig, command: str = "train", paths: bool = False) -> list[str]:
+    """Every problem :func:`validate_config` would report, one line each (``paths``: the path
+    fields too, which looks at the file system)."""
     scopes = COMMAND_SCOPES.get(command, frozenset({"policy", "network"}))
-    problems = _check_choices(cfg)
+    problems = range_problems(cfg, AppConfig)
+    problems += _check_choices(cfg)
     if "policy" in scopes and "policy" in cfg:
         problems += check_policy(cfg.policy)
+    problems += _check_encoder(cfg, scopes)
     if "network" in scopes:
-        problems += network_problems(cfg)
+        problems += network_problems(cfg) + _check_kernel(cfg)
     if "task" in cfg:
         problems += _check_task(cfg, scopes)
     for check in (*BUILTIN_CHECKS, *_CHECKS):
         problems += check(cfg, command)
+    if paths:
+        problems += path_problems(cfg, AppConfig, command, dataset_problem)
+    return list(dict.fromkeys(problems))  # a rule that two checks share is said once
+
+
+def validate_config(cfg: DictConfig, command: str = "train", paths: bool = False) -> None:
+    """Raise :class:`ConfigValidationError` listing every field of ``cfg`` that cannot work for
+    ``command`` (see :data:`COMMAND_SCOPES`): each value outside its declared range
+    (:mod:`l1flow_rl.config.ranges`), each unknown choice, each broken relation between fields, and
+    with ``paths`` each path field that names nothing usable (:mod:`l1flow_rl.config.path_fields`)."""
+    problems = config_problems(cfg, command, paths)
     if problems:
-        raise ConfigValidationError(
-            f"{len(problems)} config value(s) cannot work:\n  " + "\n  ".join(problems)
-        )
+        raise ConfigValidationError(problems)

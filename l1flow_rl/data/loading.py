@@ -37,7 +37,7 @@ from l1flow_rl.data.publish import publish_dir
 if TYPE_CHECKING:
     from l1flow_rl.data.formats.base import EpisodeFile
 
-__all__ = ["episodes_metadata", "load_episodes", "open_episode_file"]
+__all__ = ["dataset_problem", "episodes_metadata", "load_episodes", "open_episode_file"]
 
 #: Written beside a memory-mapped copy: where it came from (for reuse checks and error messages).
 SOURCE_FILE = "l1flow_source.json"
@@ -49,8 +49,8 @@ def _is_zarr(path: Path) -> bool:
     return (path / "zarr.json").is_file() or (path / ".zgroup").is_file()
 
 
-def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
-    """The reader for ``path``'s format, opened. Errors name the file and what was expected."""
+def _reader_class(path: Path) -> type[EpisodeFile]:
+    """The reader of ``path``'s format, told from its content; errors name the file and the formats."""
     # The readers import h5py, which only the app extra installs: imported when a file is opened, so
     # that a core install imports the data layer.
     try:
@@ -67,30 +67,49 @@ def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
             f"{path}: reading demonstration files needs {err.name}, which is not installed: "
             "pip install 'l1flow-rl[app]'"
         ) from err
-    path = Path(path)
     if not path.exists():
         raise EpisodeDataError(f"{path}: no such file or directory")
     if path.is_dir():
         if is_torchrl_lerobot(path):
-            reader = LeRobotDirectory
-        elif is_raw_lerobot(path):  # meta/info.json: LeRobot's own layout (v3.0; older ones refused)
-            reader = LeRobotV3Directory
-        elif _is_zarr(path):
-            reader = DiffusionPolicyZarr
-        else:
-            raise EpisodeDataError(
-                f"{path}: a directory that is neither a zarr store nor a LeRobot dataset; supported: "
-                "ManiSkill .h5+.json, robomimic .hdf5, Diffusion Policy .zarr, LeRobot v3.0 folder, LeRobot "
-                "(TorchRL copy)"
-            )
-    elif h5py.is_hdf5(path):
-        with open_h5(path) as f:
-            reader = RobomimicFile if "data" in f else ManiSkillFile
-    else:
+            return LeRobotDirectory
+        if is_raw_lerobot(path):  # meta/info.json: LeRobot's own layout (v3.0; older ones refused)
+            return LeRobotV3Directory
+        if _is_zarr(path):
+            return DiffusionPolicyZarr
         raise EpisodeDataError(
-            f"{path}: not a supported demonstration file (not HDF5; truncated?); supported: ManiSkill "
-            ".h5+.json, robomimic .hdf5, Diffusion Policy .zarr directory, LeRobot directory (TorchRL copy)"
+            f"{path}: a directory that is neither a zarr store nor a LeRobot dataset; supported: "
+            "ManiSkill .h5+.json, robomimic .hdf5, Diffusion Policy .zarr, LeRobot v3.0 folder, LeRobot "
+            "(TorchRL copy)"
         )
+    if h5py.is_hdf5(path):
+        with open_h5(path) as f:
+            return RobomimicFile if "data" in f else ManiSkillFile
+    raise EpisodeDataError(
+        f"{path}: not a supported demonstration file (not HDF5; truncated?); supported: ManiSkill "
+        ".h5+.json, robomimic .hdf5, Diffusion Policy .zarr directory, LeRobot directory (TorchRL copy)"
+    )
+
+
+def dataset_problem(path: str | os.PathLike) -> str | None:
+    """Why ``path`` is no demonstration dataset this loader reads (its format is told as
+    :func:`open_episode_file` tells it, nothing is loaded), or None; also None where the readers are
+    not installed, which opening the file reports."""
+    path = Path(path)
+    try:
+        _reader_class(path)
+    except EpisodeDataError as err:
+        return str(err).removeprefix(f"{path}: ")
+    except ImportError:
+        return None
+    except OSError as err:  # HDF5's signature, but the file does not open (truncated, unreadable)
+        return f"cannot be read: {err}"
+    return None
+
+
+def open_episode_file(path: str | os.PathLike, **options) -> EpisodeFile:
+    """The reader for ``path``'s format, opened. Errors name the file and what was expected."""
+    path = Path(path)
+    reader = _reader_class(path)
     try:
         return reader(path, **options)
     except TypeError as err:

@@ -38,15 +38,13 @@ def check_seed_ranges(val_seed: int, val_episodes: int, seed: int, episodes: int
 
 def eval_config_problems(cfg: DictConfig, command: str) -> list[str]:
     """The ``eval`` group's values that cannot work for ``command`` (config time, one line each):
-    episode counts, and validation seeds that overlap the test seeds."""
+    no test episodes for ``eval``, and validation seeds that overlap the test seeds."""
     ev = cfg.get("eval") if isinstance(cfg, DictConfig) else None
     if ev is None:
         return []
     problems = []
-    if ev.episodes < 1 and command == "eval":
-        problems.append(f"eval.episodes={ev.episodes}: expected >= 1")
-    if ev.val_episodes < 0:
-        problems.append(f"eval.val_episodes={ev.val_episodes}: expected >= 0 (0: as many as eval.episodes)")
+    if ev.episodes == 0 and command == "eval":  # below 0: outside the range declared on the field
+        problems.append(f"eval.episodes={ev.episodes}: expected >= 1 (l1flow-rl eval runs episodes)")
     try:
         check_seed_ranges(ev.val_seed, ev.val_episodes or ev.episodes, ev.seed, ev.episodes)
     except ValueError as err:

@@ -27,7 +27,10 @@ import torch
 from safetensors.torch import load_file
 from torch import Tensor, nn
 
-__all__ = ["BasicBlock", "ResNet18GN", "group_norm", "load_torchvision_resnet18"]
+__all__ = ["WIDTHS", "BasicBlock", "ResNet18GN", "group_norm", "load_torchvision_resnet18"]
+
+#: the channel counts of the four stages (the stem has the first): each GroupNorm's group_size divides them
+WIDTHS = (64, 128, 256, 512)
 
 #: BatchNorm entries of a torchvision state_dict that a GroupNorm has no place for
 BN_STATISTICS = ("running_mean", "running_var", "num_batches_tracked")
@@ -85,12 +88,12 @@ class ResNet18GN(nn.Module):
 
     def __init__(self, num_classes: int | None = None, group_size: int = 16, in_channels: int = 3) -> None:
         super().__init__()
-        self.conv1 = nn.Conv2d(in_channels, 64, 7, stride=2, padding=3, bias=False)
-        self.bn1 = group_norm(64, group_size)
+        self.conv1 = nn.Conv2d(in_channels, WIDTHS[0], 7, stride=2, padding=3, bias=False)
+        self.bn1 = group_norm(WIDTHS[0], group_size)
         self.relu = nn.ReLU(inplace=True)
         self.maxpool = nn.MaxPool2d(3, stride=2, padding=1)
-        widths, channels = (64, 128, 256, 512), 64
-        for i, width in enumerate(widths):
+        channels = WIDTHS[0]
+        for i, width in enumerate(WIDTHS):
             stride = 1 if i == 0 else 2
             layer = nn.Sequential(
                 BasicBlock(channels, width, stride, group_size), BasicBlock(width, width, 1, group_size)
