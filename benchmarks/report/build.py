@@ -32,6 +32,7 @@ from benchmarks.report.speed import (
     render_image_train,
     render_latency,
     render_latency_cuda,
+    render_network_cost,
     render_sampler,
     render_sim_throughput,
     render_train_throughput,
@@ -117,6 +118,7 @@ GROUPS: dict[str, list[Section]] = {
         Section(
             r"export_latency\.json", "Deployable policy: exported program and ONNX", render_export_latency
         ),
+        Section(r"network_cost\.json", "State denoisers: the UNet against the MLP", render_network_cost),
     ],
     "Fine-tuning": [
         Section(r"finetune_online_.*\.json", "Online fine-tuning: every arm", _arms, True),

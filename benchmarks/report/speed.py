@@ -13,6 +13,7 @@ __all__ = [
     "render_image_train",
     "render_latency",
     "render_latency_cuda",
+    "render_network_cost",
     "render_sampler",
     "render_sim_throughput",
     "render_train_throughput",
@@ -205,3 +206,37 @@ def render_sim_throughput(d: dict) -> str:
             for name, rate in block["steps_per_s"].items():
                 rows.append([task, name, rate, block["ratio_to_raw"][name]])
     return table(["task", "setting", "steps/s", "× raw"], rows)
+
+
+def render_network_cost(data: dict) -> str:
+    """The state denoisers side by side: one training step and one 2-NFE chunk, each network's wall
+    ms and the MLP's multiple of the UNet's in the same run."""
+    figs, d = data["figures"], data["data"]
+    names = list(figs)
+    lines = [
+        f"State observations {d['obs_dim']}-D, {d['action_dim']}-D actions, training batch "
+        f"{d['train_batch']}; {data['repetitions']['statistic']} over the repetitions; ratio = MLP over UNet "
+        "in the same run.",
+        "",
+        "| figure | "
+        + " | ".join(f"{n} ({figs[n]['parameters'] / 1e6:.2f}M params)" for n in names)
+        + " | ratio |",
+        "|---|" + "---|" * (len(names) + 1),
+    ]
+    rows = [
+        ("training step, " + k.replace("_", " "), "train_step_ms", k) for k in figs[names[0]]["train_step_ms"]
+    ]
+    rows += [("2-NFE chunk, " + k.replace("_", " "), "chunk_ms", k) for k in figs[names[0]]["chunk_ms"]]
+    for label, group, key in rows:
+        values = [figs[n][group][key] for n in names]
+        ratio = values[-1] / values[0] if values[0] else float("nan")
+        lines.append(f"| {label} (ms) | " + " | ".join(f"{v:.3g}" for v in values) + f" | {ratio:.3f} |")
+    goals = data.get("goals", {})
+    if goals:
+        lines += [
+            "",
+            f"MLP training step {goals['train_step_speedup_1_thread']:.1f}x faster than the UNet's on one "
+            "thread (goal >= 10x); MLP chunk rate at batch 1 "
+            f"{goals['mlp_chunk_rate_hz_batch1_1_thread']:.0f} Hz on one thread (goal >= 1 kHz).",
+        ]
+    return "\n".join(lines)

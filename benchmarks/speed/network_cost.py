@@ -20,12 +20,7 @@ rate at batch 1 on the CPU.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import statistics
-import subprocess
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -35,6 +30,7 @@ import torch
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 
+from benchmarks.lib.common import machine_info, parse_args, save_results
 from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.workspace.build import build_actor, build_loss
 from l1flow_rl.workspace.trainer import Trainer
@@ -112,32 +108,6 @@ def measure(network: str, warmup: int, reps: int) -> dict[str, Any]:
     return out
 
 
-def _machine() -> dict[str, Any]:
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {
-        "cpu": model,
-        "cores": os.cpu_count(),
-        "torch": torch.__version__,
-        "python": platform.python_version(),
-    }
-
-
-def _commit() -> str:
-    try:
-        return subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def run(warmup: int, reps: int) -> dict[str, Any]:
     threads_before = torch.get_num_threads()
     try:
@@ -173,20 +143,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--warmup", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="2 timed calls, 1 warm-up: a smoke run")
     parser.add_argument("--out", type=Path, default=None)
-    args = parser.parse_args(argv)
+    args = parse_args(parser, argv)  # the command, arguments and commit go into the saved file
     warmup, reps = (1, 2) if args.quick else (args.warmup, args.reps)
     out = args.out or (OUT.with_name("network_cost_quick.json") if args.quick else OUT)
-    record = {
-        "command": " ".join(
-            ["python -m benchmarks.speed.network_cost", *(argv if argv is not None else sys.argv[1:])]
-        ),
-        "commit": _commit(),
-        "machine": _machine(),
-        "quick": args.quick,
-        **run(warmup, reps),
-    }
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(record, indent=2) + "\n")
+    record = {"machine": machine_info(torch.device("cpu")), "quick": args.quick, **run(warmup, reps)}
+    save_results(out, record)
     g, r = record["goals"], record["ratios"]
     print(
         f"train step (batch {TRAIN_BATCH}) MLP/UNet: {r['train_step_mlp_over_unet']}; "

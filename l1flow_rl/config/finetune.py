@@ -88,9 +88,10 @@ class OnlineConfig:
     # (eval.val_seed, 10,000 on) and test (eval.seed, 100,000 on) seeds, so no test episode is trained on
     env_seed: int = bounded(1_000_000, ge=0, lt=2**32)
     # std of Gaussian noise on every executed action while collecting (TorchRL's AdditiveGaussianModule,
-    # kept inside the action bounds; validation and test act without it). PickCube's mixed-50 start never
-    # solves 55 of 100 starts under 8 draws of its own sampler noise; std 0.02 reaches 18 of them
-    # (benchmarks/results/noise_draw_maniskill_pickcube_mixed50b*.json).
+    # kept inside the action bounds; validation and test act without it): the 2-NFE sampler's own noise
+    # moves the executed actions little (benchmarks/results/noise_authority.json), so starts it never
+    # solves stay unsolved without it; PickCube's arms with and without it:
+    # finetune_online_maniskill_pickcube_mixed50b_filtered_bc_an0p0*.json.
     action_noise: float = bounded(0.0, ge=0, zero="the policy's own noise only")
 
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import pytest
 import torch
+from doubles.episodes import GAMMA, make_episodes
 from tensordict import TensorDict
-from test_data_rl import GAMMA, make_episodes
 
 from l1flow_rl import (
     ChunkCriticLoss,

@@ -524,8 +524,10 @@ def test_report_does_not_pass_the_collectors_threads_and_load_off_as_the_runs():
 def test_open_loop_error_reads_each_runs_checkpoint_on_the_same_windows(tmp_path):
     # Two tiny runs of the point-mass double laid out as bench_success lays them out; the benchmark
     # scores both on the same demonstration windows, and DDPM runs also under DDIM-16.
-    from doubles.point_mass import POINT_MASS_TASK  # noqa: F401  (registers the double)
-    from test_envs_point_mass import TASK_OVERRIDES
+    from doubles.point_mass import (
+        POINT_MASS_TASK,  # noqa: F401  (registers the double)
+        TASK_OVERRIDES,
+    )
 
     from benchmarks.success import bench_open_loop
     from l1flow_rl.commands.cli import main

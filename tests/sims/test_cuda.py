@@ -201,8 +201,10 @@ def test_compiled_trainer_then_other_batch_sizes_on_cuda():
 def test_train_job_on_cuda_then_eval_of_its_checkpoint_on_cpu(tmp_path, env_device):
     # `l1flow-rl train device=cuda` end to end on the point-mass double (CPU simulator, CUDA policy),
     # then the checkpoint it wrote re-scored with device=cpu: a GPU-trained policy loads on a CPU box.
-    from doubles.point_mass import POINT_MASS_TASK  # noqa: F401  (registers the double)
-    from test_envs_point_mass import TASK_OVERRIDES
+    from doubles.point_mass import (
+        POINT_MASS_TASK,  # noqa: F401  (registers the double)
+        TASK_OVERRIDES,
+    )
 
     from l1flow_rl.commands.cli import main
 

@@ -8,8 +8,8 @@ import json
 import pytest
 import torch
 from doubles.point_mass import POINT_MASS_TASK  # noqa: F401  (registers the simulator)
+from doubles.point_mass import TASK_OVERRIDES as TASK
 from tensordict import TensorDict
-from test_envs_point_mass import TASK_OVERRIDES as TASK
 
 from l1flow_rl import L1FlowActor
 from l1flow_rl.commands.cli import main

@@ -21,7 +21,7 @@ from doubles.point_mass import TASK_OVERRIDES
 from l1flow_rl.commands.cli import main
 from l1flow_rl.workspace.checkpoint import first_non_finite, load_checkpoint
 
-TESTS = Path(__file__).parent
+TESTS = Path(__file__).parents[2]
 STEPS = 150
 
 
@@ -119,7 +119,7 @@ def test_a_diverging_run_stops_naming_the_step_and_its_last_checkpoint_is_finite
     # lr 30 takes the double's loss to NaN after about 15 steps (lr 1e8 does within 3, before any
     # checkpoint); metrics are read, and checkpoints written, every 5 steps. (No validation: the
     # double's physics turn the actions of weights that large into NaN observations. That a NaN
-    # never reaches best.pt is tests/test_harness.py's.)
+    # never reaches best.pt is tests/unit/workspace/test_harness.py's.)
     run_dir = tmp_path / "run"
     assert main(_args(data_dir, run_dir, "train.lr=30", "train.log_every=5", "train.checkpoint_every=5")) == 2
     err = capsys.readouterr().err

@@ -267,8 +267,7 @@ def test_missing_feature_gaps_and_shapes_are_named(tmp_path):
 
 
 def test_train_on_a_v3_folder_end_to_end(tmp_path):
-    from doubles.point_mass import POINT_MASS_TASK
-    from test_envs_point_mass import TASK_OVERRIDES
+    from doubles.point_mass import POINT_MASS_TASK, TASK_OVERRIDES
 
     from l1flow_rl.commands.cli import main
     from l1flow_rl.experts import ensure_demos

@@ -21,7 +21,7 @@ import importlib.abc
 import importlib.metadata as md
 import sys
 
-sys.path.insert(0, {str(Path(__file__).parent)!r})
+sys.path.insert(0, {str(Path(__file__).parents[2])!r})
 from core_install import core_distributions, extra_top_levels, norm as _norm
 
 CORE = core_distributions()

@@ -1,5 +1,5 @@
 """The scripted NutAssemblySquare expert on the real simulator: its demonstrations replay to success
-from their stored first state in a fresh env (tests/test_hard_tasks_train.py trains on them)."""
+from their stored first state in a fresh env (tests/sims/test_hard_tasks_train.py trains on them)."""
 
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ from l1flow_rl.config.validate import ConfigValidationError
 from l1flow_rl.finetune.registry import builtin_algorithm_names, get_algorithm
 from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
 
-CONFIGS = str(Path(__file__).parent / "doubles" / "configs")
+CONFIGS = str(Path(__file__).parents[2] / "doubles" / "configs")
 PLUGIN = ["--config-dir", CONFIGS, "finetune=continued_bc"]
 
 BC = TINY_BC

@@ -10,7 +10,7 @@ import torch
 
 from l1flow_rl import L1FlowActor
 
-EXAMPLE = Path(__file__).parents[1] / "examples" / "pretrained_inference.py"
+EXAMPLE = Path(__file__).parents[3] / "examples" / "pretrained_inference.py"
 
 
 def _example():

@@ -30,7 +30,7 @@ def test_the_saved_figures_render_one_row_per_path():
     from benchmarks.report.speed import render_export_latency
 
     data = json.loads(
-        (Path(__file__).parents[1] / "benchmarks" / "results" / "export_latency.json").read_text()
+        (Path(__file__).parents[3] / "benchmarks" / "results" / "export_latency.json").read_text()
     )
     text = render_export_latency(data)
     for network, block in data["networks"].items():

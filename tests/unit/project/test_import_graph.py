@@ -20,7 +20,7 @@ from pathlib import Path
 
 from core_install import extra_top_levels
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 #: package name -> directory (pyproject.toml's package-dir)
 PACKAGES = {"l1flow_rl": ROOT / "l1flow_rl", "l1flow_rl.envs": ROOT / "envs"}
 

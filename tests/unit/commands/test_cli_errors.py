@@ -16,7 +16,7 @@ from doubles.point_mass import TASK_OVERRIDES
 from l1flow_rl.commands.cli import main
 from l1flow_rl.errors import CheckpointReadError
 
-TESTS = Path(__file__).parent
+TESTS = Path(__file__).parents[2]
 
 
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:

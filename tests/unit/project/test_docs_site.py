@@ -13,7 +13,7 @@ import pytest
 
 pytest.importorskip("mkdocstrings_handlers.python", reason="the docs extra (pip install -e '.[docs]')")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_the_docs_site_builds_strictly_with_no_warning(tmp_path):

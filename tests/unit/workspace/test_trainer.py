@@ -136,7 +136,7 @@ dist.destroy_process_group()
 def test_ddp_two_processes_on_gloo_stay_in_sync(tmp_path):
     out = tmp_path / "ddp.json"
     script = tmp_path / "ddp_check.py"
-    script.write_text(_DDP_SCRIPT.format(tests_dir=str(Path(__file__).parent), out=str(out)))
+    script.write_text(_DDP_SCRIPT.format(tests_dir=str(Path(__file__).parents[2]), out=str(out)))
     cmd = [
         sys.executable,
         "-m",
