@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import pytest
 import torch
+from doubles.episodes import GAMMA, make_episodes
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 
 from l1flow_rl import BestOfNActor, FQLLoss, L1FlowActor, OneStepActor
 from l1flow_rl.commands.cli import compose_config
-from l1flow_rl.data.episodes import assemble_episode
-from l1flow_rl.data.metadata import attach_metadata
 from l1flow_rl.finetune.buffers import RLBuffers
 from l1flow_rl.finetune.registry import get_algorithm
 from l1flow_rl.networks.critic import ChunkCritic
@@ -99,30 +98,13 @@ def test_qc_keeps_its_number_of_proposals_configurable(num_samples):
 
 # -- DSRL --------------------------------------------------------------------------------------------
 
-GAMMA, H = 0.9, 4
-LENGTHS, TERMINATED = (6, 9), (True, False)
-
-
-def episodes() -> TensorDict:
-    """Episode e, step t: observation [e * 1000 + t, -t], reward 1 + t + 10 e."""
-    parts = []
-    for e, (n, term) in enumerate(zip(LENGTHS, TERMINATED)):
-        t = torch.arange(n + 1, dtype=torch.float32)
-        obs = torch.stack([e * 1000 + t, -t], -1)
-        reward = 1 + torch.arange(n, dtype=torch.float32) + 10 * e
-        parts.append(
-            assemble_episode(
-                e, obs[:n], torch.randn(n, 2), reward=reward, terminated=term, final_observation=obs[n]
-            )
-        )
-    return attach_metadata(
-        torch.cat(parts), {"source": "hand.h5", "has_rewards": True, "has_final_observation": True}
-    )
+H = 4
+LENGTHS, TERMINATED = (6, 9), (True, False)  # make_episodes' defaults
 
 
 def dsrl_target_by_hand(e: int, t: int, q_next: float, per_chunk: bool) -> float:
-    """DSRL's chunk MDP: the chunk's rewards summed, gamma once per chunk; per env step: each reward
-    discounted, gamma^h on the bootstrap."""
+    """DSRL's chunk MDP: the chunk's rewards (1 + t + 10 e) summed, gamma once per chunk; per env step:
+    each reward discounted, gamma^h on the bootstrap."""
     length, terminated = LENGTHS[e], TERMINATED[e]
     steps = range(min(H, length - t))
     if per_chunk:
@@ -150,8 +132,9 @@ def test_dsrl_discounts_per_chunk_decision_by_default(per_chunk):
     cfg = compose_config(overrides, command="finetune")
     assert cfg.finetune.dsrl.discount_per_chunk is per_chunk  # the preset says it
     algorithm = get_algorithm("dsrl")
-    batch = RLBuffers(cfg, episodes(), H, seed=0, **algorithm.buffer_options(cfg.finetune)).sample_offline()
-    flow = L1FlowActor.for_state(obs_dim=2, action_dim=2, down_dims=(8, 16))
+    options = algorithm.buffer_options(cfg.finetune)
+    batch = RLBuffers(cfg, make_episodes(LENGTHS, TERMINATED), H, seed=0, **options).sample_offline()
+    flow = L1FlowActor.for_state(obs_dim=2, action_dim=3, down_dims=(8, 16))
     loss = algorithm.build(flow, cfg.finetune)
     q_next = 2.0
     loss.next_value = lambda td, next_obs: torch.full((next_obs.shape[0],), q_next)
