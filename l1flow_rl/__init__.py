@@ -13,6 +13,7 @@ from l1flow_rl.finetune.dsrl.actor import NoiseActor
 from l1flow_rl.finetune.dsrl.loss import DSRLLoss
 from l1flow_rl.finetune.dsrl_na.loss import DSRLNALoss
 from l1flow_rl.finetune.filtered_bc.loss import FilteredBCLoss
+from l1flow_rl.finetune.flowq.loss import FlowQLoss
 from l1flow_rl.finetune.fql.actor import OneStepActor
 from l1flow_rl.finetune.fql.loss import FQLLoss
 from l1flow_rl.finetune.qc.actor import BestOfNActor
@@ -44,6 +45,7 @@ __all__ = [
     "FQLLoss",
     "FilteredBCLoss",
     "FlowMatchingLoss",
+    "FlowQLoss",
     "L1FlowActor",
     "L1FlowLoss",
     "NoiseActor",

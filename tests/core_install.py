@@ -1,7 +1,8 @@
 """What a core install (``pip install l1flow-rl``, no extras) holds, read from the installed metadata:
 the distributions it brings and the top-level modules that only the extras bring. Used in this
 process (tests/unit/project/test_import_graph.py) and inside the interpreter that hides the extras
-(tests/unit/project/test_core_install.py), so it imports nothing outside the standard library and packaging."""
+(tests/unit/project/test_core_install.py), so it imports nothing outside the standard library and
+packaging."""
 
 from __future__ import annotations
 

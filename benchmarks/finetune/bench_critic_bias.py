@@ -215,7 +215,7 @@ def _buffers(cfg: DictConfig, episodes, loss, dump: Path, seed: int):
     from l1flow_rl.finetune.registry import get_algorithm
 
     alg = get_algorithm(cfg.finetune.algorithm)
-    bufs = RLBuffers(cfg, episodes, loss.rl_horizon, seed=seed, **alg.buffer_options())
+    bufs = RLBuffers(cfg, episodes, loss.rl_horizon, seed=seed, **alg.buffer_options(cfg.finetune))
     bufs.load_online(dump)
     bufs.online.set_rng(torch.Generator().manual_seed(seed + 1))  # the dump's generator: seeded anew
     return bufs

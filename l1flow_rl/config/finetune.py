@@ -34,8 +34,8 @@ REWARD_KEYS = {"sparse": ("next", "terminated"), "recorded": ("next", "reward")}
 
 @dataclass
 class FinetuneConfig:
-    algorithm: str = "qc"  # a registered algorithm: qc | fql | dsrl | dsrl_na | filtered_bc
-    gamma: float = bounded(0.99, ge=0, le=1)  # discount per env step
+    algorithm: str = "qc"  # a registered algorithm: qc | fql | flowq | dsrl | dsrl_na | filtered_bc
+    gamma: float = bounded(0.99, ge=0, le=1)  # discount per env step (per chunk: dsrl.discount_per_chunk)
     tau: float = bounded(0.005, gt=0, le=1)  # Polyak rate of the target critics (TorchRL SoftUpdate)
     lr: float = bounded(3.0e-4, gt=0)  # Adam, every network
     # an EMA that acts (Diffusion Policy's schedule, as BC trains): of the trained BC flow where the

@@ -7,9 +7,9 @@
   targets), :mod:`.collect` (the online rounds), :mod:`.proposal_cache` (a frozen flow's proposals,
   drawn once).
 * :mod:`.registry`: ``finetune.algorithm`` -> the algorithm, found by import.
-* One folder per algorithm: ``qc``, ``fql``, ``dsrl``, ``dsrl_na``, ``filtered_bc``; each holds its loss
-  (``loss.py``), its acting module (``actor.py``, where it has its own), its settings block
-  (``settings.py``) and its builder (``algorithm.py``, ``ALGORITHM``).
+* One folder per algorithm: ``qc``, ``fql``, ``flowq``, ``dsrl``, ``dsrl_na``, ``filtered_bc``; each
+  holds its loss (``loss.py``), its acting module (``actor.py``, where it has its own), its settings
+  block (``settings.py``) and its builder (``algorithm.py``, ``ALGORITHM``).
 
 Add a fine-tuning algorithm (one folder plus one preset; nothing else changes):
 

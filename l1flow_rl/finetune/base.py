@@ -16,9 +16,12 @@ The chunk critic's target. For a window at step t with h executed actions, the t
     y = R_h + gamma^h * (1 - terminated) * Qbar(s_{t+h}, a'),     R_h = sum_{i<h} gamma^i r_{t+i}
 
 with ``a'`` from the algorithm's next-chunk actor and ``Qbar`` the target critics aggregated by
-``min`` or ``mean``. The windows (:func:`~l1flow_rl.data.rl_windows.read_rl_targets`) give
-``("next", "terminated")`` only where an episode ended in a terminal state within the chunk; a
-truncated episode bootstraps from its final observation. A chunk that crosses a terminal end is
+``min`` or ``mean``. With ``per_chunk_discount`` (DSRL: its env wrapper makes one chunk one step of
+the MDP) gamma is the discount per chunk decision: ``R_h`` sums the chunk's rewards undiscounted and
+the bootstrap is discounted by ``gamma`` once. The windows
+(:func:`~l1flow_rl.data.rl_windows.read_rl_targets`) give ``("next", "terminated")`` only where an
+episode ended in a terminal state within the chunk; a truncated episode bootstraps from its final
+observation. A chunk that crosses a terminal end is
 valid: its return is summed to that end and nothing is bootstrapped. A chunk that crosses a
 truncated end is not (``chunk_valid`` False) and drops out of the loss, as in QC.
 """
@@ -84,6 +87,9 @@ class ChunkCriticLoss(LossModule):
             actor in :meth:`next_value` instead.
         gamma: per-step discount; the bootstrap is discounted by ``gamma ** rl_horizon``. The
             windows' chunk returns must be discounted with the same gamma.
+        per_chunk_discount: ``gamma`` is the discount per chunk decision instead (DSRL): the
+            bootstrap is discounted by ``gamma``; the windows' chunk returns must then be the
+            undiscounted sums of the chunks' rewards (the buffers' return discount 1).
         q_agg: ``"mean"`` (QC, FQL) or ``"min"`` over the target critics.
         rl_horizon: h, executed actions per chunk (default: the policy's ``action_steps``).
 
@@ -135,6 +141,7 @@ class ChunkCriticLoss(LossModule):
         q_agg: str = "mean",
         rl_horizon: int | None = None,
         target_critics: int | None = None,
+        per_chunk_discount: bool = False,
     ) -> None:
         if q_agg not in Q_AGGREGATIONS:
             raise ValueError(f"q_agg must be one of {Q_AGGREGATIONS}, got {q_agg!r}")
@@ -158,6 +165,7 @@ class ChunkCriticLoss(LossModule):
                 f"rl_horizon={self.rl_horizon} must lie in [1, action_steps={reader.action_steps}]"
             )
         self.gamma, self.q_agg = float(gamma), q_agg
+        self.per_chunk_discount = bool(per_chunk_discount)
         members = self.critic.num_critics
         if target_critics is not None and not 1 <= target_critics <= members:
             raise ValueError(f"target_critics={target_critics} must lie in [1, num_critics={members}]")
@@ -236,16 +244,21 @@ class ChunkCriticLoss(LossModule):
             )
         return self.aggregate_target(self.q(next_obs, self._next_actor(next_obs), target=True))
 
+    @property
+    def bootstrap_discount(self) -> float:
+        """What the next value is discounted by: ``gamma ** rl_horizon``, or ``gamma`` per chunk."""
+        return self.gamma if self.per_chunk_discount else self.gamma**self.rl_horizon
+
     @torch.no_grad()
     def td_target(self, td: TensorDictBase) -> Tensor:
-        """y [N]: R_h + gamma^h * (1 - terminated) * next value."""
+        """y [N]: R_h + bootstrap_discount * (1 - terminated) * next value."""
         keys = self.tensor_keys
         next_obs = self.read_observation(td, keys.next_observation)
         n = next_obs.shape[0]
         reward = self._column(td, ("next", keys.reward), n, "the discounted chunk return")
         terminated = self._column(td, ("next", keys.terminated), n, "terminal end within the chunk").bool()
         bootstrap = self.next_value(td, next_obs)
-        return reward.to(bootstrap.dtype) + self.gamma**self.rl_horizon * (~terminated) * bootstrap
+        return reward.to(bootstrap.dtype) + self.bootstrap_discount * (~terminated) * bootstrap
 
     def qvalue_loss(self, td: TensorDictBase) -> tuple[Tensor, dict[str, Tensor]]:
         """Mean squared TD error of every critic over the valid windows, and its diagnostics."""
@@ -331,9 +344,10 @@ class FinetuneAlgorithm:
         block = cfg.get(self.name) if self.name else None
         return OmegaConf.merge(OmegaConf.structured(self.settings), block or {})
 
-    def buffer_options(self) -> dict[str, Any]:
+    def buffer_options(self, cfg: DictConfig | None = None) -> dict[str, Any]:
         """What the replay buffers keep and draw for this algorithm (the keyword arguments of
-        :class:`~l1flow_rl.finetune.buffers.RLBuffers`)."""
+        :class:`~l1flow_rl.finetune.buffers.RLBuffers`); ``cfg``: the ``finetune`` block, where its
+        settings change them (None: the settings' defaults)."""
         return {
             "online_keys": self.online_keys,
             "online_anchor_key": self.online_anchor_key,

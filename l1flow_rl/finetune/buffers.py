@@ -90,6 +90,8 @@ class RLBuffers:
             here; filtered behaviour cloning), in the demonstrations (a mixed-quality set's failures
             drop out) and online. Until an online episode qualifies, batches are the demonstrations'
             alone, counted in :attr:`demo_only_batches`.
+        return_discount: the discount of the rewards within a chunk's return (None:
+            ``finetune.gamma``, per env step; 1.0 where gamma is per chunk decision, as DSRL's).
     """
 
     def __init__(
@@ -101,6 +103,7 @@ class RLBuffers:
         online_keys: tuple[str, ...] = (),
         online_anchor_key: str | None = None,
         successful_episodes_only: bool = False,
+        return_discount: float | None = None,
     ) -> None:
         ocfg = cfg.online
         if not 0.0 <= ocfg.offline_fraction < 1.0:
@@ -122,7 +125,7 @@ class RLBuffers:
             batch_size=cfg.finetune.batch_size,
             **chunk_padding(cfg, episodes),  # the BC run's rule: recorded control, data.padding
             rl_horizon=rl_horizon,
-            gamma=cfg.finetune.gamma,
+            gamma=cfg.finetune.gamma if return_discount is None else float(return_discount),
             reward_key=REWARD_KEYS[reward],
             keys=CORE_KEYS,  # demonstrations and online episodes share one set of entries
             terminated_episodes_only=successful_episodes_only,

@@ -185,7 +185,11 @@ class Finetune:
         )
         self.acting = ActingSwitch(self.learner.start, self.learner.acting)
         self.buffers = RLBuffers(
-            cfg, episodes, self.learner.loss.rl_horizon, seed=int(cfg.seed), **algorithm.buffer_options()
+            cfg,
+            episodes,
+            self.learner.loss.rl_horizon,
+            seed=int(cfg.seed),
+            **algorithm.buffer_options(cfg.finetune),
         )
         kept, given = self.buffers.demo_episodes["kept"], self.buffers.demo_episodes["given"]
         if kept < given:  # said, not silent: a mixed-quality set's failed episodes train nothing here

@@ -15,10 +15,19 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import Tensor, nn
 
-__all__ = ["Normalizer", "NormalizerDict", "NormalizerMode"]
+__all__ = ["ACTION_RANGE", "Normalizer", "NormalizerDict", "NormalizerMode", "clip_actions"]
 
 NormalizerMode = Literal["identity", "limits", "gaussian"]
 _MODES = ("identity", "limits", "gaussian")
+
+#: the demonstrated action range in normalised units under the ``limits`` normaliser (the default for
+#: actions): what the fine-tuning actors clip the chunks they execute and value to
+ACTION_RANGE = (-1.0, 1.0)
+
+
+def clip_actions(x: Tensor) -> Tensor:
+    """Normalised actions clipped to :data:`ACTION_RANGE` (gradient zero outside it)."""
+    return x.clamp(*ACTION_RANGE)
 
 
 class Normalizer(nn.Module):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from omegaconf import DictConfig
 
 from l1flow_rl.finetune.base import ChunkCriticAlgorithm
@@ -27,6 +29,18 @@ class SteeringAlgorithm(ChunkCriticAlgorithm):
 
     def start_actor(self, loss: DSRLLoss) -> NoiseActor:
         return loss.actor.prior()
+
+    def buffer_options(self, cfg: DictConfig | None = None) -> dict[str, Any]:
+        options = super().buffer_options(cfg)
+        if self.settings_of(cfg or {}).discount_per_chunk:  # a chunk's rewards are one step's, summed
+            options["return_discount"] = 1.0
+        return options
+
+    def td_options(self, cfg: DictConfig) -> dict[str, Any]:
+        return {
+            **super().td_options(cfg),
+            "per_chunk_discount": bool(self.settings_of(cfg).discount_per_chunk),
+        }
 
 
 class DSRL(SteeringAlgorithm):

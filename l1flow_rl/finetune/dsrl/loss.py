@@ -4,9 +4,12 @@ The flow is frozen; a squashed-Gaussian policy (:class:`~l1flow_rl.NoiseActor`) 
 w within a bound, and the chunk executed is the flow's 2-NFE decoding of w. The critics value
 Q(s, w) of the noise that was acted on (``"noise"`` in the batch), so an update evaluates no flow:
 
-    y = R_h + gamma^h * (1 - terminated) * (Qbar(s_{t+h}, w') - a * log pi(w' | s_{t+h})),  w' ~ pi
+    y = R_h + g * (1 - terminated) * (Qbar(s_{t+h}, w') - a * log pi(w' | s_{t+h})),  w' ~ pi
     actor:  a * log pi(w | s) - Q(s, w),   w ~ pi (reparameterised)
     temperature: -log a * (log pi(w | s) + target_entropy)   (detached log pi)
+
+with g = gamma per chunk decision and R_h the chunk's rewards summed, as DSRL's chunk-wrapped env
+(``finetune.dsrl.discount_per_chunk``), or g = gamma^h and R_h discounted per env step.
 """
 
 from __future__ import annotations

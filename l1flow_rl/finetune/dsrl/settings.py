@@ -17,5 +17,8 @@ class DSRLSettings:
     # of the H x A noise (log pi sums one term per noise entry) swamps sparse rewards <= 1 in the soft
     # target; 1e-3 keeps the entropy term at the rewards' scale.
     init_alpha: float = bounded(1.0e-3, gt=0)
+    # DSRL steps a chunk-wrapped env (one chunk = one MDP step, its rewards summed) under SB3's gamma:
+    # finetune.gamma per chunk decision, 0.99 there; false: per env step (0.99^8 = 0.92 per chunk of 8)
+    discount_per_chunk: bool = True
     # DSRL: 3 x 2048; 3 x 512 for the cost on 2 cores
     actor_hidden_dims: list[int] = bounded(lambda: [512, 512, 512], ge=1, each=True)

@@ -1,6 +1,10 @@
 """FQL's one-step policy mu(s, z): an MLP on [observation features, noise], no time input, trained from
 scratch (:class:`~l1flow_rl.FQLLoss` distils the L1 Flow policy's 2-NFE chunk from the same noise
 into it and pushes it up the critics).
+
+mu's raw output is what is distilled; only the chunk that is executed or valued is clipped to the
+action range (:meth:`OneStepPolicy.clipped`), as in seohongpark/fql: a unit pushed past a bound by the
+Q term keeps the distillation's gradient pulling it back.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ from tensordict.nn import InteractionType, TensorDictModule
 from tensordict.nn.probabilistic import interaction_type
 from torch import Tensor, nn
 
-from l1flow_rl.modules.normalizer import Normalizer, NormalizerDict
+from l1flow_rl.modules.normalizer import Normalizer, NormalizerDict, clip_actions
 from l1flow_rl.modules.policy import ChunkPolicy, ExecutesChunks
 from l1flow_rl.networks.critic import fresh_encoder
 
@@ -22,11 +26,13 @@ __all__ = ["OneStepActor", "OneStepPolicy"]
 
 
 class OneStepPolicy(nn.Module):
-    """mu(s, z): read observation [N, To] and noise z [N, H, A] -> normalised chunk [N, H, A] in [-1, 1].
+    """mu(s, z): read observation [N, To] and noise z [N, H, A] -> normalised chunk [N, H, A].
 
-    The output is clipped to [-1, 1], the demonstrated action range under the ``limits`` normaliser
-    (FQL clips its actions to the action range). Observations are read by the same reader as the
-    flow's (:meth:`ChunkPolicy.as_obs_dict`: this class has the attributes it reads).
+    :meth:`chunk` is the raw output (what distillation trains); :meth:`clipped` and the acting
+    :meth:`forward` clip it to [-1, 1], the demonstrated action range under the ``limits`` normaliser
+    (FQL clips the actions it executes and values, not the one it distils). Observations are read by
+    the same reader as the flow's (:meth:`ChunkPolicy.as_obs_dict`: this class has the attributes it
+    reads).
     """
 
     as_obs_dict = ChunkPolicy.as_obs_dict
@@ -54,10 +60,14 @@ class OneStepPolicy(nn.Module):
         return next(self.net.parameters()).dtype
 
     def chunk(self, obs: TensorDictBase, noise: Tensor) -> Tensor:
-        """The normalised chunk [N, H, A] (clipped to [-1, 1]) for a read observation and noise."""
+        """The raw normalised chunk [N, H, A] (not clipped) for a read observation and noise."""
         feats = self.encoder(self.obs_normalizer.normalize(obs)).reshape(obs.shape[0], -1)
         out = self.net(torch.cat([feats, noise.reshape(noise.shape[0], -1)], -1))
-        return out.reshape(noise.shape).clamp(-1.0, 1.0)
+        return out.reshape(noise.shape)
+
+    def clipped(self, obs: TensorDictBase, noise: Tensor) -> Tensor:
+        """The chunk that is executed and valued: :meth:`chunk` clipped to the action range."""
+        return clip_actions(self.chunk(obs, noise))
 
     def forward(self, observation: Tensor | TensorDictBase, deterministic: bool | None = None) -> Tensor:
         """Executable window [*B, K, A] in environment units; noise is zero when deterministic."""
@@ -69,7 +79,9 @@ class OneStepPolicy(nn.Module):
         noise = (
             torch.zeros(shape, dtype=self.dtype) if deterministic else torch.randn(shape, dtype=self.dtype)
         )
-        x = self.action_normalizer.unnormalize(self.chunk(obs, noise.to(self.action_normalizer.scale.device)))
+        x = self.action_normalizer.unnormalize(
+            self.clipped(obs, noise.to(self.action_normalizer.scale.device))
+        )
         window = self.executable(x)
         return window.reshape(*batch, *window.shape[1:])
 

@@ -2,10 +2,12 @@
 
 * The BC flow keeps training with its L1 Flow loss on the replay batches.
 * The one-step policy mu(s, z) (:class:`~l1flow_rl.OneStepActor`, trained from scratch) minimises
-  ``alpha * ||mu(s, z) - flow(s, z)||^2 - lambda * Q(s, mu(s, z))``: the teacher's chunk is its 2-NFE
-  sample from the same noise z, under no_grad and clipped to the action range; ``lambda = 1 / mean|Q|``
-  (detached) with ``normalize_q_loss``, Q the critics' mean.
-* The TD target's next chunk is mu's at s_{t+h}.
+  ``alpha * ||mu(s, z) - flow(s, z)||^2 - lambda * Q(s, clip(mu(s, z)))``: the teacher's chunk is its
+  2-NFE sample from the same noise z, under no_grad and clipped to the action range; mu's raw output
+  is distilled and only what the critics value is clipped (seohongpark/fql), so a unit past a bound
+  still feels the distillation; ``lambda = 1 / mean|Q|`` (detached) with ``normalize_q_loss``, Q the
+  critics' mean.
+* The TD target's next chunk is mu's at s_{t+h}, clipped as it would be executed.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from torch import Tensor
 from l1flow_rl.finetune.base import ChunkCriticLoss
 from l1flow_rl.finetune.fql.actor import OneStepActor, OneStepPolicy
 from l1flow_rl.modules.actor import L1FlowActor
+from l1flow_rl.modules.normalizer import clip_actions
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.objectives.l1flow import L1FlowLoss
 from l1flow_rl.utils.doc_examples import CRITIC, FLOW, TRAIN_STEP, TRANSITIONS, add_example
@@ -110,7 +113,7 @@ class FQLLoss(ChunkCriticLoss):
     def next_value(self, td: TensorDictBase, next_obs: TensorDictBase) -> Tensor:
         scale = self.reader.action_normalizer.scale
         with self.actor_network_params.to_module(self.actor_network):
-            x = self.mu.chunk(next_obs, self._noise(next_obs.shape[0], scale))
+            x = self.mu.clipped(next_obs, self._noise(next_obs.shape[0], scale))
         return self.aggregate_target(self.q(next_obs, self._env_executed(x), target=True))
 
     @torch.no_grad()  # the teacher gets no gradient from distillation
@@ -118,14 +121,14 @@ class FQLLoss(ChunkCriticLoss):
         """The flow's 2-NFE chunk from noise ``z`` (normalised, clipped to the action range): mu's target."""
         flow = self.reader
         cond = flow.encode(obs)
-        return flow.sampler(lambda xt, t: flow.denoise(xt, t, cond), z).clamp(-1.0, 1.0)
+        return clip_actions(flow.sampler(lambda xt, t: flow.denoise(xt, t, cond), z))
 
     def actor_terms(self, obs: TensorDictBase, x: Tensor, teacher: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """The actor loss's parts at mu's chunk ``x`` (normalised): the distillation term
-        ``||x - teacher||^2`` (mean over the chunk), the critics' mean value of x's executed steps per
-        window (no gradient to the critics), and lambda (detached)."""
+        """The actor loss's parts at mu's raw chunk ``x`` (normalised): the distillation term
+        ``||x - teacher||^2`` (mean over the chunk, x unclipped), the critics' mean value of the
+        clipped x's executed steps per window (no gradient to the critics), and lambda (detached)."""
         distill = (x - teacher).square().mean()
-        q = self.q(obs, self._env_executed(x), detach=True).mean(-1)
+        q = self.q(obs, self._env_executed(clip_actions(x)), detach=True).mean(-1)
         lam = 1.0 / q.abs().mean().detach().clamp_min(1e-6) if self.normalize_q_loss else q.new_ones(())
         return distill, q, lam
 

@@ -2,7 +2,9 @@
 
 The flow is the behaviour-cloned policy (kept training by :class:`~l1flow_rl.QCLoss`'s BC term), so
 every executed chunk is one the data make likely, and the critics only rank the flow's own samples.
-N proposals cost two batched network evaluations.
+N proposals cost two batched network evaluations. The proposals are clipped to the action range
+before the critics value them (ColinQiyangLi/qc clips its samples before the pick): a critic ranks
+the chunk that would be executed, never a value it extrapolates past the bounds.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from tensordict.utils import NestedKey
 from torch import Tensor
 
 from l1flow_rl.modules.actor import L1FlowActor
+from l1flow_rl.modules.normalizer import clip_actions
 from l1flow_rl.modules.policy import ChunkPolicy, ExecutesChunks
 from l1flow_rl.networks.critic import ChunkCritic
 from l1flow_rl.utils.doc_examples import CRITIC, FLOW, add_example
@@ -75,9 +78,9 @@ class BestOfNActor(ExecutesChunks, TensorDictModuleBase):
     def propose(
         self, obs: TensorDictBase, num_samples: int | None = None, noise: Tensor | None = None
     ) -> Tensor:
-        """N full chunks per read observation [B, To]: [B, N, H, A] in environment units (the
-        encoder runs once per observation, the network twice per chunk). ``noise`` [B, N, H, A]:
-        the sampler's starting noise (default: fresh standard-normal draws)."""
+        """N full chunks per read observation [B, To]: [B, N, H, A] in environment units, clipped to
+        the action range (the encoder runs once per observation, the network twice per chunk).
+        ``noise`` [B, N, H, A]: the sampler's starting noise (default: fresh standard-normal draws)."""
         policy, n = self.policy, int(num_samples or self.num_samples)
         cond = policy.encode(obs).repeat_interleave(n, 0)
         shape = (cond.shape[0], policy.pred_horizon, policy.action_dim)
@@ -89,6 +92,7 @@ class BestOfNActor(ExecutesChunks, TensorDictModuleBase):
                 f"pred_horizon, action_dim), got {list(noise.shape)}"
             )
         x1 = policy.sampler(lambda x, t: policy.denoise(x, t, cond), noise.reshape(shape).to(cond))
+        x1 = clip_actions(x1)
         return policy.action_normalizer.unnormalize(x1).reshape(obs.shape[0], n, *x1.shape[1:])
 
     def executed(self, chunks: Tensor) -> Tensor:

@@ -17,7 +17,15 @@ from l1flow_rl.experts import ExpertSpec, register_expert
 
 from .env import ENV_IDS, PointMassEnv
 
-__all__ = ["EXPERT", "POINT_MASS_TASK", "SIMULATOR", "TASK_OVERRIDES", "PointMassEnv", "make_point_mass_env"]
+__all__ = [
+    "EXPERT",
+    "POINT_MASS_TASK",
+    "SIMULATOR",
+    "TASK_OVERRIDES",
+    "TINY_BC",
+    "PointMassEnv",
+    "make_point_mass_env",
+]
 
 #: The task config a user would put in ``configs/task/point_mass_reach.yaml``.
 POINT_MASS_TASK = TaskConfig(
@@ -39,6 +47,18 @@ TASK_OVERRIDES = [
     "task.control_mode=acceleration",
     "task.control=absolute",
     "task.max_episode_steps=30",
+]
+
+#: A tiny BC run on the task (``l1flow-rl train``): a start that fine-tuning tests can load in seconds.
+TINY_BC = [
+    "train",
+    *TASK_OVERRIDES,
+    "demos.num=4",
+    "train.steps=30",
+    "train.batch_size=16",
+    "eval.episodes=0",
+    "network.down_dims=[16,32]",
+    "device=cpu",
 ]
 
 

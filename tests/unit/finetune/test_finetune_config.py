@@ -55,7 +55,7 @@ def test_bad_fine_tuning_settings_fail_at_config_time_naming_the_field():
     with pytest.raises(
         ConfigValidationError,
         match=r"finetune\.algorithm='sac': expected one of "
-        r"\['dsrl', 'dsrl_na', 'filtered_bc', 'fql', 'qc'\]",
+        r"\['dsrl', 'dsrl_na', 'filtered_bc', 'flowq', 'fql', 'qc'\]",
     ):
         compose_config(["finetune=qc", "finetune.algorithm=sac"], command="finetune")
     with pytest.raises(ConfigValidationError, match=r"offline\.steps=100: finetune\.algorithm=dsrl"):

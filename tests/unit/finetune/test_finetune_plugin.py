@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from doubles.point_mass import TASK_OVERRIDES
+from doubles.point_mass import TASK_OVERRIDES, TINY_BC
 
 from l1flow_rl import L1FlowActor
 from l1flow_rl.commands.cli import compose_config, main
@@ -22,16 +22,7 @@ from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
 CONFIGS = str(Path(__file__).parents[2] / "doubles" / "configs")
 PLUGIN = ["--config-dir", CONFIGS, "finetune=continued_bc"]
 
-BC = [
-    "train",
-    *TASK_OVERRIDES,
-    "demos.num=4",
-    "train.steps=30",
-    "train.batch_size=16",
-    "eval.episodes=0",
-    "network.down_dims=[16,32]",
-    "device=cpu",
-]
+BC = TINY_BC
 # 3 offline updates, then 2 rounds of 60 env steps (2 envs), 0.05 updates per env step (the preset has
 # no warm-up): 3 + 6
 FINETUNE = [
@@ -128,7 +119,7 @@ def test_every_built_in_algorithm_has_a_folder_a_preset_and_ranges_on_its_number
     from l1flow_rl.config.ranges import declared_ranges
 
     names = builtin_algorithm_names()
-    assert names == ["dsrl", "dsrl_na", "filtered_bc", "fql", "qc"]
+    assert names == ["dsrl", "dsrl_na", "filtered_bc", "flowq", "fql", "qc"]
     for name in names:
         algorithm = get_algorithm(name)
         assert algorithm.name == name and (Path(CONFIG_DIR) / "finetune" / f"{name}.yaml").is_file()

@@ -38,6 +38,7 @@ MODULES = [
     "l1flow_rl.finetune.dsrl.loss",
     "l1flow_rl.finetune.dsrl_na.loss",
     "l1flow_rl.finetune.filtered_bc.loss",
+    "l1flow_rl.finetune.flowq.loss",
 ]
 
 
