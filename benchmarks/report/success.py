@@ -69,6 +69,7 @@ def render_main_job(d: dict) -> str:
         f"{d['success_once_min']:.2f}, longest wall {d['wall_seconds_max']:,.0f} s: the job {verdict} its "
         f"targets (success_once ≥ {d['target_success_once']} over ≥ {d['target_episodes']} test episodes "
         f"within {d['budget_seconds'] / 60:.0f} minutes, in every run)."
+        + (f"\n\n**Caveat:** {d['caveat']}" if d.get("caveat") else "")
     )
 
 
