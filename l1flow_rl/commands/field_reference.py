@@ -5,8 +5,7 @@ from the declarations beside the fields (:mod:`l1flow_rl.config.ranges`,
     python -m l1flow_rl.commands.field_reference           # rewrite the section between the markers
     python -m l1flow_rl.commands.field_reference --check   # exit 1 when the page is out of date
 
-Every composed fine-tuning preset is walked, so a settings block whose schema the chosen algorithm
-picks (:func:`~l1flow_rl.config.ranges.register_subschema`) is listed too.
+Every composed fine-tuning preset is walked, so each algorithm's own settings block is listed too.
 """
 
 from __future__ import annotations
@@ -65,7 +64,7 @@ def schema_fields(cfg: DictConfig) -> Iterator[tuple[str, dataclasses.Field, Any
     if name in builtin_algorithm_names() and OmegaConf.select(cfg, f"finetune.{name}") is not None:
         settings = get_algorithm(name).settings  # the block holds the preset's keys; the rest default
         block = OmegaConf.merge(OmegaConf.structured(settings), cfg.finetune[name])
-        yield from walk_fields(block, settings, f"finetune.{name}", cfg)
+        yield from walk_fields(block, settings, f"finetune.{name}")
 
 
 def _default(f: dataclasses.Field) -> Any:

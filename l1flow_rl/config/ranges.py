@@ -32,7 +32,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import typing
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -46,7 +46,6 @@ __all__ = [
     "field_range",
     "is_numeric",
     "range_problems",
-    "register_subschema",
     "walk_fields",
 ]
 
@@ -157,17 +156,6 @@ def field_range(f: dataclasses.Field) -> Range | None:
     return f.metadata.get(RANGE_KEY)
 
 
-#: dotted config key -> callable returning the schema of a block whose type the composed config picks
-#: (a fine-tuning algorithm's own settings): the walk checks that block against it
-_SUBSCHEMAS: dict[str, Callable[[DictConfig], type | None]] = {}
-
-
-def register_subschema(key: str, schema_of: Callable[[DictConfig], type | None]) -> None:
-    """Declare that the block at dotted ``key`` is checked against ``schema_of(cfg)`` (a dataclass), a
-    schema that depends on the composed config (e.g. the chosen fine-tuning algorithm's settings)."""
-    _SUBSCHEMAS[key] = schema_of
-
-
 def _resolved_hints(schema: type) -> dict[str, Any]:
     try:
         return typing.get_type_hints(schema)
@@ -218,13 +206,12 @@ def _plain(node: Any) -> Any:
 
 
 def walk_fields(
-    cfg: Any, schema: type, prefix: str = "", root: Any = None
+    cfg: Any, schema: type, prefix: str = ""
 ) -> Iterator[tuple[str, dataclasses.Field, Any, Any]]:
-    """Every leaf field of ``schema`` that ``cfg`` holds, as ``(dotted key, field, type, value)``:
-    nested dataclasses walked, and a block registered with :func:`register_subschema` walked
-    against the schema it names for this ``cfg`` (what :func:`range_problems` checks; the schema
-    sweep test and the field reference walk the same)."""
-    root = cfg if root is None else root
+    """Every leaf field of ``schema`` that ``cfg`` holds, as ``(dotted key, field, type, value)``,
+    nested dataclasses walked (what :func:`range_problems` checks; the schema sweep test and the
+    field reference walk the same). A fine-tuning algorithm's own block is walked against its settings
+    by :mod:`l1flow_rl.finetune.registry`, which knows the chosen algorithm."""
     if cfg is None or not isinstance(cfg, (DictConfig, dict)):
         return
     hints = _resolved_hints(schema)
@@ -233,23 +220,21 @@ def walk_fields(
         if f.name not in cfg:
             continue
         value = cfg[f.name]
-        sub = _SUBSCHEMAS.get(key)
-        nested = sub(root) if sub is not None else _nested_schema(hints.get(f.name, f.type))
+        nested = _nested_schema(hints.get(f.name, f.type))
         if nested is not None:
-            yield from walk_fields(value, nested, key, root)
+            yield from walk_fields(value, nested, key)
         else:
             yield key, f, hints.get(f.name, f.type), value
 
 
-def range_problems(cfg: Any, schema: type, prefix: str = "", root: Any = None) -> list[str]:
+def range_problems(cfg: Any, schema: type, prefix: str = "") -> list[str]:
     """One line per value of ``cfg`` outside the range its ``schema`` field declares (nested
-    dataclasses and registered sub-schemas walked), each ``key=value: expected <range>``. Fields
+    dataclasses walked), each ``key=value: expected <range>``. Fields
     absent from ``cfg`` are skipped."""
     problems: list[str] = []
     if isinstance(cfg, DictConfig):  # walked as plain dicts: a tenth of the cost of DictConfig look-ups
-        root = cfg if root is None else root
         cfg = _plain(cfg)
-    for key, f, _, value in walk_fields(cfg, schema, prefix, root):
+    for key, f, _, value in walk_fields(cfg, schema, prefix):
         rng = field_range(f)
         if rng is None:
             continue

@@ -22,7 +22,7 @@ from l1flow_rl.commands.field_reference import (
 )
 from l1flow_rl.config.app import AppConfig
 from l1flow_rl.config.path_fields import DATASET, EXISTING, WRITABLE_DIR, declared_paths
-from l1flow_rl.config.ranges import field_range, is_numeric, walk_fields
+from l1flow_rl.config.ranges import field_range, is_numeric
 from l1flow_rl.config.validate import config_problems
 
 
@@ -247,37 +247,6 @@ def test_the_field_reference_in_docs_cli_is_current():
     assert BEGIN in text and END in text
     current = text.split(BEGIN, 1)[1].split(END, 1)[0].strip()
     assert current == reference_markdown().strip(), "run: python -m l1flow_rl.commands.field_reference"
-
-
-def test_a_block_whose_schema_the_config_picks_is_walked_and_checked(monkeypatch):
-    """A settings block typed ``dict`` whose schema the chosen algorithm names (register_subschema)
-    is walked like a nested dataclass, so the sweep above covers it."""
-    from dataclasses import dataclass, field
-
-    from l1flow_rl.config import ranges
-
-    @dataclass
-    class Settings:
-        n: int = ranges.bounded(3, ge=1)
-        name: str = "x"
-
-    @dataclass
-    class Root:
-        algo: str = "a"
-        block: dict = field(default_factory=dict)
-
-    monkeypatch.setitem(ranges._SUBSCHEMAS, "block", lambda cfg: Settings if cfg.algo == "a" else None)
-    cfg = OmegaConf.create({"algo": "a", "block": {"n": 0, "name": "y"}})
-    assert [(k, v) for k, _, _, v in walk_fields(cfg, Root)] == [
-        ("algo", "a"),
-        ("block.n", 0),
-        ("block.name", "y"),
-    ]
-    assert ranges.range_problems(cfg, Root) == ["block.n=0: expected >= 1"]
-    cfg.algo = "b"  # a schema-less block: walked as a leaf
-    assert [k for k, *_ in walk_fields(cfg, Root)] == ["algo", "block"] and ranges.range_problems(
-        cfg, Root
-    ) == []
 
 
 def test_numeric_fields_are_told_by_their_type():
