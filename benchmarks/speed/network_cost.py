@@ -30,13 +30,12 @@ import torch
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 
-from benchmarks.lib.common import machine_info, parse_args, save_results
+from benchmarks.lib.common import RESULTS_DIR, machine_info, parse_args, save_results
 from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.workspace.build import build_actor, build_loss
 from l1flow_rl.workspace.trainer import Trainer
 
-ROOT = Path(__file__).resolve().parents[2]
-OUT = ROOT / "benchmarks" / "results" / "network_cost.json"
+OUT = RESULTS_DIR / "network_cost.json"
 # ManiSkill PushCube-v1, obs_mode=state, pd_ee_delta_pos: 35 state entries, 4 action dims (as the
 # train job's demonstrations give them; benchmarks/bench_latency.py uses the same)
 OBS_DIM, ACTION_DIM = 35, 4
