@@ -8,7 +8,14 @@ validation curve. The file's verdict holds only if every run meets both targets;
 it draws each run's validation curve and its test point. On a machine shared with other work the
 wall time is inflated: each run's CPU seconds (its whole process tree) and the load average are saved.
 
-    python -m benchmarks.success.bench_main_job [--seeds 0 1 2] [--quick] [--out PATH] [override ...]
+    python -m benchmarks.success.bench_main_job [--seeds 0 1 2] [--quick] [--guard MIN] [--out PATH] \
+        [override ...]
+
+When the run ships other weights than its last (``eval.json``'s ``selection``), the last weights
+(``checkpoints/latest.pt``) are tested on the same test seeds too: the target holds for both.
+
+``--guard MIN`` is CI's check of the published figure: it exits 1 when any run's test of the weights
+the command ships is below MIN (CI: one seed, 0.90), after saving its JSON as usual.
 
 ``--quick`` runs the same command on a tiny budget (2 demonstrations, 4 steps, a small network, 2
 test episodes) to check the script; its JSON says so and never meets the targets.
@@ -55,6 +62,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="report the finished runs under --workdir instead of running again (wall time: their summaries)",
     )
+    parser.add_argument(
+        "--guard",
+        type=float,
+        default=None,
+        help="exit 1 when a run's test of its shipped weights is below this",
+    )
     parser.add_argument("overrides", nargs="*", help="extra hydra overrides (default: none, the main job)")
     args = parse_args(parser, argv)
     if any(o.split("=", 1)[0].lstrip("+~") == "seed" for o in args.overrides):
@@ -62,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.overrides = [*QUICK, *args.overrides]
     elif not any(o.startswith("eval.episodes=") for o in args.overrides):
-        # the main job's defaults test 50 episodes; its target is stated over 100
+        # the target is stated over 100 test episodes, whatever the defaults say
         args.overrides = [f"eval.episodes={TARGET_EPISODES}", *args.overrides]
     work = Path(args.workdir or tempfile.mkdtemp(prefix="l1flow-main-job-"))
     runs = []
@@ -93,13 +106,48 @@ def main(argv: list[str] | None = None) -> int:
                 return proc.returncode
         # --reuse: the run's own clock, which misses the interpreter's start (~5 s)
         wall_from = "summary.json" if args.reuse else "end to end"
-        runs.append({**_run_record(seed, run_dir, wall), "wall_from": wall_from})
+        record = _run_record(seed, run_dir, wall)
+        if record["weights_step"] != record["steps"]:
+            record.update(_last_weights_test(run_dir, args.overrides, args.reuse))
+        runs.append({**record, "wall_from": wall_from})
     figures = _figures(args, runs)
     out = save_results(args.out or f"benchmarks/results/main_job{'_quick' * args.quick}.json", figures)
     _plot(runs, out.with_suffix(".png"))
     print(json.dumps({k: v for k, v in figures.items() if k != "runs"}, indent=2))
     print(f"saved {out} and {out.with_suffix('.png')}")
+    if args.guard is not None:
+        low = [r for r in runs if r["success_once"] < args.guard]
+        for r in low:
+            print(
+                f"main job below its guard: seed {r['seed']} tested {r['success_once']:.2f} over "
+                f"{r['eval_episodes']} episodes (< {args.guard}); see {out}",
+                file=sys.stderr,
+            )
+        return 1 if low else 0
     return 0
+
+
+def _last_weights_test(run_dir: Path, overrides: list[str], reuse: bool) -> dict:
+    """The run's last weights (``latest.pt``) on the same test seeds and episode count as its test."""
+    out = run_dir / "eval_last"
+    if not (reuse and (out / "eval.json").is_file()):
+        keep = [o for o in overrides if o.split("=", 1)[0] in ("eval.episodes", "eval.num_envs")]
+        cmd = [
+            sys.executable,
+            "-m",
+            "l1flow_rl.commands.cli",
+            "eval",
+            f"checkpoint={run_dir / 'checkpoints' / 'latest.pt'}",
+            f"run_dir={out}",
+            *keep,
+        ]
+        print("running:", " ".join(cmd), flush=True)
+        subprocess.run(cmd, check=True)
+    result = json.loads((out / "eval.json").read_text())
+    return {
+        "last_weights_success_once": result["success_once"],
+        "last_weights_success_once_ci95": result.get("ci95", {}).get("success_once"),
+    }
 
 
 def _run_record(seed: int, run_dir: Path, wall: float) -> dict:
@@ -116,6 +164,7 @@ def _run_record(seed: int, run_dir: Path, wall: float) -> dict:
         "cpu_seconds": summary.get("cpu_seconds"),
         "run_machine": summary.get("machine"),
         "steps": summary.get("steps"),
+        "weights_step": result.get("selection", {}).get("step", summary.get("steps")),
         "success_once": result["success_once"],
         "success_at_end": result["success_at_end"],
         "success_once_ci95": result.get("ci95", {}).get("success_once"),
@@ -124,13 +173,17 @@ def _run_record(seed: int, run_dir: Path, wall: float) -> dict:
         "eval_episodes": result["episodes"],
         "chunk_latency_ms_median": result.get("latency_ms_median"),
         "validation": validation,
-        "meets_targets": wall <= BUDGET_S
-        and result["success_once"] >= TARGET_SUCCESS
-        and result["episodes"] >= TARGET_EPISODES,
     }
 
 
 def _figures(args: argparse.Namespace, runs: list[dict]) -> dict:
+    for r in runs:
+        tested = [r["success_once"], r.get("last_weights_success_once", r["success_once"])]
+        r["meets_targets"] = (
+            r["wall_seconds"] <= BUDGET_S
+            and min(tested) >= TARGET_SUCCESS
+            and r["eval_episodes"] >= TARGET_EPISODES
+        )
     success = [r["success_once"] for r in runs]
     walls = [r["wall_seconds"] for r in runs]
     return {

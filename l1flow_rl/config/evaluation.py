@@ -19,7 +19,7 @@ class EvalConfig:
     # How figures are measured (l1flow_rl.evaluation.protocol_names()): default | maniskill | ...
     protocol: str = "default"
     # test episodes: the reported figures
-    episodes: int = bounded(50, ge=0, zero="no evaluation in train and finetune; eval needs >= 1")
+    episodes: int = bounded(100, ge=0, zero="no evaluation in train and finetune; eval needs >= 1")
     # test seeds: seed, seed + 1, ... (Diffusion Policy's convention)
     seed: int = bounded(100_000, ge=0, lt=2**32)
     # episodes of each validation (checkpoint choice)

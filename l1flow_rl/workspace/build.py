@@ -11,7 +11,7 @@ from torchrl.objectives import LossModule
 from l1flow_rl.modules.actor import L1FlowActor
 from l1flow_rl.objectives.registry import get_loss
 
-__all__ = ["build_actor", "build_loss"]
+__all__ = ["build_actor", "build_loss", "padding_masked_by_default"]
 
 
 def _plain(cfg: DictConfig | Mapping) -> dict:
@@ -31,8 +31,23 @@ def build_actor(
     return L1FlowActor.from_config(policy_cfg, obs_shapes, action_dim, encoder_cfg, network_cfg)
 
 
-def build_loss(actor: L1FlowActor, policy_cfg: DictConfig | Mapping, **extra) -> LossModule:
-    """The policy config's loss on ``actor``; ``extra`` are arguments that do not come from
+def padding_masked_by_default(control: str | None) -> bool:
+    """Whether a chunk loss leaves padded steps out unless ``policy.loss_kwargs.mask_padding`` says.
+
+    Delta control pads past an episode's end with "no motion", a label the demonstrator never gave
+    mid-task: trained on, it teaches the policy to stop early (the main job's pushes that halt after
+    5-8 cm). Absolute control pads with the last action, which is what holding still means, so those
+    steps stay in the loss as in Diffusion Policy."""
+    return control == "delta"
+
+
+def build_loss(
+    actor: L1FlowActor, policy_cfg: DictConfig | Mapping, *, control: str | None = None, **extra
+) -> LossModule:
+    """The policy config's loss on ``actor``; ``control`` is the data's control kind (``task.control``),
+    which sets ``mask_padding`` where ``policy.loss_kwargs`` does not
+    (:func:`padding_masked_by_default`); ``extra`` are arguments that do not come from
     ``policy.loss_kwargs`` (a distillation loss's ``teacher``)."""
     p = _plain(policy_cfg)
-    return get_loss(p["loss"])(actor, **p.get("loss_kwargs", {}), **extra)
+    kwargs = {"mask_padding": padding_masked_by_default(control), **p.get("loss_kwargs", {})}
+    return get_loss(p["loss"])(actor, **kwargs, **extra)

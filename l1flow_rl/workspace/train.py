@@ -87,7 +87,13 @@ def run_train(cfg: DictConfig) -> int:
             fit_normalizers(actor.policy, episodes, mode=pcfg.normalizer, obs_mode=pcfg.obs_normalizer)
             actor.to(device)
             extra = {} if teacher is None else {"teacher": teacher}
-            return buffer, action_dim, obs_shapes, actor, build_loss(actor, pcfg, **extra)
+            return (
+                buffer,
+                action_dim,
+                obs_shapes,
+                actor,
+                build_loss(actor, pcfg, control=cfg.task.control, **extra),
+            )
 
         buffer, action_dim, obs_shapes, actor, loss_fn = run_on_every_rank(
             setup, "loading the demonstrations and building the model"
