@@ -1,15 +1,17 @@
 """Where a fine-tuning update's time goes on this machine, and what acting costs the env loop.
 
-For QC, FQL, DSRL and DSRL-NA (their presets, ``configs/finetune/``) at batch 256 with the task's policy
-network (``PolicyConfig`` and ``NetworkConfig``: the ManiSkill-sized UNet, down_dims 64/128/256) on the
-task's observation and action sizes, the parts of one update of every setting are timed in alternation,
-all settings in one loop (``benchmarks.lib.common.interleaved``):
+For QC, FQL, flow-Q, DSRL and DSRL-NA (their presets, ``configs/finetune/``) at batch 256 with the
+policy network ``--network`` (``configs/network/``: ``unet``, the ManiSkill-sized UNet, down_dims
+64/128/256, or ``mlp``, 4 x 512) on the task's observation and action sizes, the parts of one update
+of every setting are timed in alternation, all settings in one loop
+(``benchmarks.lib.common.interleaved``):
 
 * ``targets``: the TD target (QC: N proposals at s' by the 2-NFE sampler, the online critics' pick,
   the target critics' value; FQL: mu at s'; DSRL: the noise actor at s'), and within it
   ``proposals_2nfe`` (QC: the flow on 256 x N chunks) alone; DSRL-NA: the actor's w' decoded at s';
 * ``critic_fwd_bwd``: the critics' regression onto a fixed target, forward and backward;
-* ``actor_fwd_bwd``: FQL's mu loss (with its 2-NFE teacher), DSRL's noise-actor and temperature losses;
+* ``actor_fwd_bwd``: FQL's mu loss (with its 2-NFE teacher), flow-Q's actor loss (the actor's 2-NFE
+  chunk with its gradient, the teacher's, the critics), DSRL's noise-actor and temperature losses;
 * ``distill_fwd_bwd``: DSRL-NA's noise critic fitted to the action critic (cached chunks: timed warm);
 * ``bc_fwd_bwd``: the flow's L1 Flow loss (QC, FQL);
 * ``update``: the whole update as the loop runs it (losses, backward, Adam, SoftUpdate).
@@ -20,7 +22,7 @@ next observation: timed warm, as in a run where each stored state's proposals we
 Then env steps/s of one physx_cpu env stepping random actions (raw) against the env driven by each
 algorithm's acting module (one chunk per 8 steps). Ratios are against baselines of the same run.
 
-    python -m benchmarks.finetune.bench_finetune_cost [--task maniskill_pickcube] [--rounds 5]
+    python -m benchmarks.finetune.bench_finetune_cost [--task maniskill_pickcube] [--network mlp] [--rounds 5]
 
 ``--quick`` runs every part once at a tiny batch, to check the script (not the speed).
 """
@@ -32,14 +34,14 @@ import dataclasses
 from pathlib import Path
 
 import torch
-from omegaconf import open_dict
+from omegaconf import OmegaConf, open_dict
 from tensordict import TensorDict
 from torchrl.objectives import SoftUpdate
 
 from benchmarks.lib.common import format_table, interleaved, machine_info, parse_args, save_results
 from benchmarks.speed.bench_env_throughput import measure, policy_in_loop, raw_in_process
 from l1flow_rl.commands.cli import compose_config
-from l1flow_rl.config import NetworkConfig, PolicyConfig, load_task_config
+from l1flow_rl.config import PolicyConfig, load_task_config
 from l1flow_rl.finetune.registry import get_algorithm
 from l1flow_rl.workspace.build import build_actor
 
@@ -69,6 +71,8 @@ DESIGN = {
     ),
     "env": "acting: QC's 32 proposals per chunk cost most (0.29x raw), FQL's one MLP call least (0.79x)",
 }
+#: what the MLP policy's figures decided (the budgets of the MLP starts' runs, bench_finetune_online)
+MLP_DESIGN: dict[str, str] = {}
 
 
 def make_batch(batch: int, obs_dim: int, action_dim: int, policy: dict) -> TensorDict:
@@ -139,6 +143,7 @@ def parts(loss, data: TensorDict) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="maniskill_pickcube")
+    parser.add_argument("--network", default="unet", help="a configs/network/ name: unet | mlp")
     parser.add_argument("--batch", type=int, default=256)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--env-steps", type=int, default=400, help="timed env steps per side")
@@ -156,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     obs_dim = int(probe.unwrapped.single_observation_space.shape[-1])
     action_dim = int(probe.unwrapped.single_action_space.shape[0])
     probe.close()
-    policy, network = dataclasses.asdict(PolicyConfig()), dataclasses.asdict(NetworkConfig())
+    policy = dataclasses.asdict(PolicyConfig())
+    network = OmegaConf.to_container(compose_config([f"network={args.network}"]).network, resolve=True)
     data = make_batch(args.batch, obs_dim, action_dim, policy)
     small = ["finetune.critic_hidden_dims=[256,256]"]
     settings = {
@@ -165,6 +171,7 @@ def main(argv: list[str] | None = None) -> int:
         "qc_frozen_flow": ("qc", ["finetune.qc.freeze_flow=true"]),
         "qc_critic_2x256": ("qc", small),
         "fql": ("fql", []),
+        "flowq": ("flowq", []),
         "dsrl": ("dsrl", []),
         "dsrl_critic_2x256": ("dsrl", small),
         "dsrl_na": ("dsrl_na", []),
@@ -219,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
             "bc_l1flow": lambda: policy_in_loop(task, cpu, 1),
             **{
                 f"{a}_actor": (lambda a=a: policy_in_loop(task, cpu, 1, wrap=acting(a)))
-                for a in ("qc", "fql", "dsrl")
+                for a in ("qc", "fql", "flowq", "dsrl")
             },
         },
         1,
@@ -235,7 +242,8 @@ def main(argv: list[str] | None = None) -> int:
         "task": task.name,
         "obs_dim": obs_dim,
         "action_dim": action_dim,
-        "policy_down_dims": network["down_dims"],  # the key the saved results and the report read
+        "network": network["name"],
+        "network_dims": network["down_dims"] or network["hidden_dims"],
         "batch": args.batch,
         "rounds": args.rounds,
         "quick": args.quick,
@@ -248,16 +256,20 @@ def main(argv: list[str] | None = None) -> int:
             "qc_frozen_flow_over_qc_update": ratio("qc_frozen_flow", "qc"),
             "qc_critic_2x256_over_qc_update": ratio("qc_critic_2x256", "qc"),
             "fql_over_qc_update": ratio("fql", "qc"),
+            "flowq_over_fql_update": ratio("flowq", "fql"),
             "dsrl_over_qc_update": ratio("dsrl", "qc"),
             "dsrl_critic_2x256_over_dsrl_update": ratio("dsrl_critic_2x256", "dsrl"),
             "dsrl_na_over_dsrl_update": ratio("dsrl_na", "dsrl"),
         },
         "updates_per_s": {k: round(1e3 / v["update"], 2) for k, v in timings.items()},
-        "design": DESIGN,
+        "design": DESIGN if args.network == "unet" else MLP_DESIGN,
         "env": env_row,
     }
     print(result["ratios"])
-    out = Path(args.out or f"benchmarks/results/finetune_cost_{task.name}{'_quick' * args.quick}.json")
+    suffix = "" if args.network == "unet" else f"_{args.network}"
+    out = Path(
+        args.out or f"benchmarks/results/finetune_cost_{task.name}{suffix}{'_quick' * args.quick}.json"
+    )
     save_results(out, result)
     print(f"wrote {out}")
     return 0

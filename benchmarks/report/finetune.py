@@ -25,9 +25,16 @@ def _ms(value: float | None) -> str:
     return "–" if value is None else (f"{value:,.0f}" if value >= 1000 else f"{value:.3g}")
 
 
+def _network(data: dict) -> str:
+    """The policy network a cost file measured (older files record the UNet's down_dims only)."""
+    if "network" not in data:
+        return f"UNet {data['policy_down_dims']}"
+    return f"{'UNet' if data['network'] == 'unet' else 'MLP'} {data['network_dims']}"
+
+
 def render_finetune_cost(data: dict) -> str:
     lines = [
-        f"Task {data['task']}, batch {data['batch']}, UNet {data['policy_down_dims']}, median wall ms of "
+        f"Task {data['task']}, batch {data['batch']}, {_network(data)}, median wall ms of "
         f"{data['rounds']} rounds per part of one update (a part's share can exceed the update's: each is "
         "timed alone).",
         "",
