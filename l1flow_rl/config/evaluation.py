@@ -18,8 +18,11 @@ __all__ = ["EvalConfig"]
 class EvalConfig:
     # How figures are measured (l1flow_rl.evaluation.protocol_names()): default | maniskill | ...
     protocol: str = "default"
+    # false: train and finetune run without any evaluation: no validation, no test, no evaluator or
+    # eval env made; checkpoints/latest.pt only (no best.pt, no eval.json). l1flow-rl eval refuses it.
+    enabled: bool = True
     # test episodes: the reported figures
-    episodes: int = bounded(100, ge=0, zero="no evaluation in train and finetune; eval needs >= 1")
+    episodes: int = bounded(100, ge=1)
     # test seeds: seed, seed + 1, ... (Diffusion Policy's convention)
     seed: int = bounded(100_000, ge=0, lt=2**32)
     # episodes of each validation (checkpoint choice)

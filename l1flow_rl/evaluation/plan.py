@@ -38,13 +38,16 @@ def check_seed_ranges(val_seed: int, val_episodes: int, seed: int, episodes: int
 
 def eval_config_problems(cfg: DictConfig, command: str) -> list[str]:
     """The ``eval`` group's values that cannot work for ``command`` (config time, one line each):
-    no test episodes for ``eval``, and validation seeds that overlap the test seeds."""
+    ``eval.enabled=false`` for ``eval``, and validation seeds that overlap the test seeds (unless
+    evaluation is off)."""
     ev = cfg.get("eval") if isinstance(cfg, DictConfig) else None
     if ev is None:
         return []
+    if not ev.get("enabled", True):
+        if command == "eval":
+            return ["eval.enabled=False: l1flow-rl eval evaluates; drop eval.enabled=false"]
+        return []  # no episode runs: the seeds are not used
     problems = []
-    if ev.episodes == 0 and command == "eval":  # below 0: outside the range declared on the field
-        problems.append(f"eval.episodes={ev.episodes}: expected >= 1 (l1flow-rl eval runs episodes)")
     try:
         check_seed_ranges(ev.val_seed, ev.val_episodes or ev.episodes, ev.seed, ev.episodes)
     except ValueError as err:

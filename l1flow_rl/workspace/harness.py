@@ -16,7 +16,8 @@ state, its counters) and ``load(state)``. :class:`Run` does the rest:
   evaluation and checkpoint steps), so the loop never waits for the device on other steps;
 - SIGTERM or SIGUSR1 (a cluster's pre-emption): a checkpoint at the current step, then
   :class:`~l1flow_rl.errors.RunPreempted`, which says how to resume;
-- validation -> ``best.pt`` -> the test evaluation of the chosen weights (``eval.json``);
+- validation -> ``best.pt`` -> the test evaluation of the chosen weights (``eval.json``); with
+  ``eval.enabled=false`` none of them (no evaluator, ``latest.pt`` only);
 - ``summary.json`` (with the clocks over every invocation and the machine), ``history.json``, plots.
 
 Under torchrun every rank calls every method; rank 0 alone touches files, logs and evaluates
@@ -155,7 +156,7 @@ class Run:
         #: entries the job adds to eval.json and summary.json (e.g. its training ledger)
         self.report_extra: dict[str, Any] = {}
         self.best = -math.inf
-        self._validates = cfg.eval.episodes > 0  # the same on every rank (the evaluator: rank 0 only)
+        self._validates = bool(cfg.eval.enabled)  # the same on every rank (the evaluator: rank 0 only)
         self.resumed: dict[str, Any] | None = None
         self.evaluator: Any = None  # rank 0 only
         self.logger: Any = None  # rank 0 only
@@ -212,7 +213,7 @@ class Run:
                 f"run_dir {str(self.run_dir)!r} already holds a run ({self.latest}); pass resume=true to "
                 "continue it, or choose another run_dir"
             )
-        if self.cfg.eval.episodes > 0:
+        if self._validates:
             self.evaluator = PeriodicEvaluator(self.cfg, self.device)
             self._stack.callback(self.evaluator.close)
 

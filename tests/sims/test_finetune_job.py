@@ -189,7 +189,7 @@ def test_resume_of_an_online_run_killed_mid_way_matches_an_uninterrupted_run(
     """The same weights, critics, optimiser, buffers, logged rounds as the uninterrupted run (evaluation
     off here, which also shows that evaluating leaves training untouched)."""
     run_dir = tmp_path / "run"
-    args = _args(run_dir, data_dir, bc_checkpoint, "finetune=qc", "eval.episodes=0")
+    args = _args(run_dir, data_dir, bc_checkpoint, "finetune=qc", "eval.enabled=false")
     resumed = _killed_and_resumed(run_dir, args, monkeypatch)
     _assert_same_run(resumed, load_checkpoint(finetuned / "checkpoints" / "latest.pt"))
 
@@ -201,7 +201,7 @@ def test_an_offline_phase_killed_mid_way_resumes_from_its_last_checkpoint_as_the
     the 2 saved (not from the start) and ends where the uninterrupted run ends, online phase included."""
     run_dir = tmp_path / "run"
     args = _args(
-        run_dir, data_dir, bc_checkpoint, "finetune=qc", "eval.episodes=0", "offline.checkpoint_every=2"
+        run_dir, data_dir, bc_checkpoint, "finetune=qc", "eval.enabled=false", "offline.checkpoint_every=2"
     )
     resumed = _killed_and_resumed(
         run_dir, args, monkeypatch, kill_at=3, saved={"offline_updates": 2, "env_steps": 0}
@@ -244,7 +244,7 @@ def test_frozen_qc_resumes_exactly_with_its_proposal_cache_redrawn(
 ):
     """The cache is not checkpointed: a resumed run redraws each observation's proposals from the same
     per-observation noise, so its critics match the uninterrupted run's bit for bit."""
-    frozen = ("finetune=qc", "finetune.qc.freeze_flow=true", "eval.episodes=0")
+    frozen = ("finetune=qc", "finetune.qc.freeze_flow=true", "eval.enabled=false")
     straight_dir = tmp_path / "straight"
     served, real_call = [], ProposalCache.__call__
     monkeypatch.setattr(ProposalCache, "__call__", lambda self, obs: served.append(1) or real_call(self, obs))
@@ -292,7 +292,7 @@ def test_steering_online_stores_the_chunk_input_and_leaves_the_flow_as_it_was(
         "finetune=dsrl",
         "offline.steps=0",
         "finetune.dsrl.actor_hidden_dims=[32]",
-        "eval.episodes=0",
+        "eval.enabled=false",
     ]
     assert main(_args(run_dir, data_dir, bc_checkpoint, *overrides)) == 0
     # the start that competes for best.pt is the BC checkpoint itself, not the warm-up actor
@@ -321,7 +321,7 @@ def test_dsrl_na_learns_from_demonstrations_with_the_flow_frozen_and_resumes_exa
     resumes to the uninterrupted run's weights (the distillation's cached noises are redrawn alike)."""
     na = ("finetune=dsrl_na", "finetune.dsrl_na.actor_hidden_dims=[32]", "finetune.dsrl_na.distill_samples=2")
     straight_dir = tmp_path / "straight"
-    assert main(_args(straight_dir, data_dir, bc_checkpoint, *na, "eval.episodes=0")) == 0
+    assert main(_args(straight_dir, data_dir, bc_checkpoint, *na, "eval.enabled=false")) == 0
     straight = load_checkpoint(straight_dir / "checkpoints" / "latest.pt")
     assert straight["progress"]["offline_updates"] == 4 and straight["progress"]["online_updates"] == 4
     actor, _ = load_actor(straight_dir / "checkpoints" / "latest.pt")
@@ -334,7 +334,7 @@ def test_dsrl_na_learns_from_demonstrations_with_the_flow_frozen_and_resumes_exa
     assert min(float(line.split(",")[1]) for line in logged.split()) > 0.5
     run_dir = tmp_path / "run"
     resumed = _killed_and_resumed(
-        run_dir, _args(run_dir, data_dir, bc_checkpoint, *na, "eval.episodes=0"), monkeypatch
+        run_dir, _args(run_dir, data_dir, bc_checkpoint, *na, "eval.enabled=false"), monkeypatch
     )
     _assert_same_run(resumed, straight)
 
@@ -345,7 +345,7 @@ def test_filtered_bc_trains_the_flow_on_demonstrations_and_successful_episodes_o
     from l1flow_rl import L1FlowActor
 
     run_dir = tmp_path / "filtered_bc"
-    overrides = ["finetune=filtered_bc", "finetune.batch_size=16", "eval.episodes=0"]
+    overrides = ["finetune=filtered_bc", "finetune.batch_size=16", "eval.enabled=false"]
     assert main(_args(run_dir, data_dir, bc_checkpoint, *overrides)) == 0
     state = load_checkpoint(run_dir / "checkpoints" / "latest.pt")
     assert state["progress"]["online_updates"] == 4 and state["progress"]["offline_updates"] == 4
@@ -371,7 +371,7 @@ def test_with_an_ema_the_averaged_flow_is_saved_for_eval_and_resumes_exactly(
     """finetune.ema_power: the raw flow trains, its EMA (one step per update) is what load_actor, hence
     eval, validation and the test, get; a run killed mid-way resumes to the same EMA. QC acts with the
     averaged flow proposing and its online critics picking."""
-    args = [f"finetune={preset}", "finetune.batch_size=16", "finetune.ema_power=0.75", "eval.episodes=0"]
+    args = [f"finetune={preset}", "finetune.batch_size=16", "finetune.ema_power=0.75", "eval.enabled=false"]
     straight_dir = tmp_path / "straight"
     assert main(_args(straight_dir, data_dir, bc_checkpoint, *args)) == 0
     straight = load_checkpoint(straight_dir / "checkpoints" / "latest.pt")
@@ -394,7 +394,7 @@ def test_with_an_ema_the_averaged_flow_is_saved_for_eval_and_resumes_exactly(
     # a resume cannot switch the EMA off or on: the weights that act would change meaning
     with pytest.raises(CheckpointMismatchError, match=r"finetune\.ema_power: checkpoint has 0.75"):
         without = _args(
-            run_dir, data_dir, bc_checkpoint, *args[:2], "finetune.ema_power=0", "eval.episodes=0"
+            run_dir, data_dir, bc_checkpoint, *args[:2], "finetune.ema_power=0", "eval.enabled=false"
         )
         main(["--debug", *without, "resume=true"])
 
@@ -439,7 +439,7 @@ def test_an_fql_run_trains_its_one_step_actor_and_its_checkpoint_evaluates(tmp_p
     from l1flow_rl import OneStepActor
 
     run_dir = tmp_path / "fql"
-    overrides = ["finetune=fql", "finetune.fql.actor_hidden_dims=[32]", "eval.episodes=0"]
+    overrides = ["finetune=fql", "finetune.fql.actor_hidden_dims=[32]", "eval.enabled=false"]
     assert main(_args(run_dir, data_dir, bc_checkpoint, *overrides)) == 0
     ckpt = run_dir / "checkpoints" / "latest.pt"
     assert load_checkpoint(ckpt)["progress"]["online_updates"] == 4

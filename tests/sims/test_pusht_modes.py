@@ -129,7 +129,7 @@ def tiny_checkpoint(tmp_path_factory):
         "task=pusht",
         "demos.num=3",
         "train.steps=20",
-        "eval.episodes=0",  # no evaluation: the benchmark rolls the checkpoint out itself
+        "eval.enabled=false",  # no evaluation: the benchmark rolls the checkpoint out itself
         "train.batch_size=16",
         "network.down_dims=[16,32]",
         "network.timestep_embed_dim=16",

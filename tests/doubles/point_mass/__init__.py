@@ -56,7 +56,7 @@ TINY_BC = [
     "demos.num=4",
     "train.steps=30",
     "train.batch_size=16",
-    "eval.episodes=0",
+    "eval.enabled=false",
     "network.down_dims=[16,32]",
     "device=cpu",
 ]

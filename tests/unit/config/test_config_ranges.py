@@ -140,7 +140,10 @@ def test_every_bad_value_at_once_is_one_line_each_exit_2_nothing_written(
     [
         ("train", "train.steps=-5", "train.steps=-5: expected >= 1"),
         ("eval", "checkpoint=CKPT eval.episodes=0", "eval.episodes=0: expected >= 1"),
-        ("train", "eval.episodes=-3", "eval.episodes=-3: expected >= 0"),
+        ("train", "eval.episodes=0", "eval.episodes=0: expected >= 1"),
+        ("finetune", "checkpoint=CKPT eval.episodes=0", "eval.episodes=0: expected >= 1"),
+        ("train", "eval.episodes=-3", "eval.episodes=-3: expected >= 1"),
+        ("eval", "checkpoint=CKPT eval.enabled=false", "eval.enabled=False: l1flow-rl eval evaluates"),
         ("train", "train.warmup_steps=-10", "train.warmup_steps=-10: expected >= 0"),
         ("train", "train.eval_every=-1", "train.eval_every=-1: expected >= 0"),
         ("train", "train.grad_clip=-1", "train.grad_clip=-1.0: expected >= 0"),
@@ -198,6 +201,31 @@ def test_the_issues_inputs_end_in_one_line_naming_the_key(
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"l1flow-rl {command}: invalid config: {line}"), lines
     assert sorted(p.name for p in tmp_path.iterdir()) == ["CKPT"]  # nothing written
+
+
+def test_finetune_refuses_an_rl_horizon_beyond_the_checkpoints_action_steps(tmp_path, monkeypatch, capsys):
+    import torch
+
+    from l1flow_rl.commands.cli import compose_config
+
+    monkeypatch.chdir(tmp_path)
+    torch.save({"model": {}, "config": {"policy": {"action_steps": 4}}}, tmp_path / "start.pt")
+    args = ["finetune", "checkpoint=start.pt"]
+    assert main([*args, "finetune.rl_horizon=5"]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    expected = "finetune.rl_horizon=5: expected at most the checkpoint's policy.action_steps=4"
+    assert len(lines) == 1 and expected in lines[0], lines
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["start.pt"]  # nothing written
+    assert compose_config([*args[1:], "finetune.rl_horizon=4"], command="finetune").finetune.rl_horizon == 4
+
+
+def test_without_evaluation_the_seeds_are_not_checked():
+    from l1flow_rl.commands.cli import compose_config
+
+    overlapping = ["eval.val_seed=100000"]  # the test seeds' range
+    assert not compose_config([*overlapping, "eval.enabled=false"], command="train").eval.enabled
+    with pytest.raises(ValueError, match="overlaps the test seeds"):
+        compose_config(overlapping, command="train")
 
 
 def test_debug_shows_the_traceback(tmp_path, monkeypatch):

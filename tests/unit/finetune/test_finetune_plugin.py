@@ -137,7 +137,7 @@ def test_a_checkpoint_recording_every_algorithms_block_still_resumes_and_evaluat
     run_dir = tmp_path / "ft"
     short = [a if a != "online.steps=120" else "online.steps=60" for a in FINETUNE]
     args = ["finetune", "finetune=filtered_bc", f"checkpoint={checkpoint}", f"data_dir={data_dir}"]
-    assert main([*args, f"run_dir={run_dir}", *short, "eval.episodes=0"]) == 0
+    assert main([*args, f"run_dir={run_dir}", *short, "eval.enabled=false"]) == 0
     latest = run_dir / "checkpoints" / "latest.pt"
     state = load_checkpoint(latest)
     every = {
@@ -150,7 +150,7 @@ def test_a_checkpoint_recording_every_algorithms_block_still_resumes_and_evaluat
     state["config"]["policy"]["finetune"].update(every)
     torch.save(state, latest)
     assert isinstance(load_actor(latest)[0], L1FlowActor)
-    assert main([*args, f"run_dir={run_dir}", *FINETUNE, "eval.episodes=0", "resume=true"]) == 0
+    assert main([*args, f"run_dir={run_dir}", *FINETUNE, "eval.enabled=false", "resume=true"]) == 0
     assert load_checkpoint(latest)["progress"]["env_steps"] == 120
 
 

@@ -185,7 +185,7 @@ def test_a_flowq_run_goes_end_to_end_and_resumes_exactly_when_killed_mid_way(
     tmp_path, bc_checkpoint, monkeypatch
 ):
     straight_dir = tmp_path / "straight"
-    assert main(_args(straight_dir, bc_checkpoint, "eval.episodes=0")) == 0
+    assert main(_args(straight_dir, bc_checkpoint, "eval.enabled=false")) == 0
     straight = load_checkpoint(straight_dir / "checkpoints" / "latest.pt")
     assert straight["progress"] == {
         "offline_updates": 3,
@@ -204,7 +204,7 @@ def test_a_flowq_run_goes_end_to_end_and_resumes_exactly_when_killed_mid_way(
 
     # killed at the second update of the second round; the last checkpoint is the first round's
     run_dir = tmp_path / "run"
-    args = _args(run_dir, bc_checkpoint, "eval.episodes=0")
+    args = _args(run_dir, bc_checkpoint, "eval.enabled=false")
     real_update, calls = Learner.update, {"n": 0}
 
     def crashing_update(self, batch):

@@ -35,7 +35,7 @@ def _args(data_dir, run_dir, *extra) -> list[str]:
         "train.warmup_steps=2",
         "train.log_every=1",
         "train.checkpoint_every=20",
-        "eval.episodes=0",
+        "eval.enabled=false",
         "network.down_dims=[16,32]",
         "device=cpu",
         f"data_dir={data_dir}",
@@ -86,6 +86,9 @@ def straight(tmp_path_factory, data_dir):
     """The uninterrupted run (in this process; it also makes the demonstrations once)."""
     run_dir = tmp_path_factory.mktemp("straight") / "run"
     assert main(_args(data_dir, run_dir)) == 0
+    # eval.enabled=false: no validation and no test, so latest.pt alone and no eval.json
+    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == ["latest.pt"]
+    assert (run_dir / "summary.json").is_file() and not (run_dir / "eval.json").exists()
     return load_checkpoint(run_dir / "checkpoints" / "latest.pt")
 
 
@@ -188,7 +191,7 @@ FINETUNE = [
     "online.updates_per_step=0.5",
     "online.checkpoint_every=120",
     "finetune.batch_size=16",
-    "eval.episodes=0",
+    "eval.enabled=false",
     "device=cpu",
 ]
 
