@@ -33,6 +33,7 @@ from l1flow_rl.config import TaskConfig
 
 try:
     import gymnasium as gym
+    from gymnasium.vector.async_vector_env import _async_worker
 except ImportError as err:  # gymnasium comes with ManiSkill
     raise ImportError(INSTALL_HINT) from err
 
@@ -109,6 +110,24 @@ class _WorkerGymEnv(gym.Env):
         self.env.close(raise_if_closed=False)
 
 
+def _worker(*args: Any) -> None:
+    """gymnasium's ``AsyncVectorEnv`` worker loop, which exits quietly once the main process has dropped
+    the vector env without closing it, or died.
+
+    Dropping an unclosed env (a script whose ``main()`` returns or calls ``sys.exit`` without
+    ``env.close()``) runs gymnasium's ``__del__``, which sends the workers SIGTERM and closes their
+    pipes. Simulator workers ignore SIGTERM (:func:`~l1flow_rl.envs.workers.signal_safe_factory`
+    says why), so they end on the closed pipe instead: gymnasium's loop reports that ``EOFError``
+    back down the same closed pipe, and each worker printed a ``BrokenPipeError`` traceback. A
+    report that fails on a broken pipe has nobody to go to; any other error still propagates.
+    """
+    try:
+        _async_worker(*args)
+    except (BrokenPipeError, ConnectionResetError) as err:
+        if not isinstance(err.__context__, (EOFError, ConnectionError)):
+            raise
+
+
 class _WorkerFactory:
     """Makes a worker's env. AsyncVectorEnv also calls it once in this process (to read the spaces):
     only in a worker does it drop torch to one thread, as ParallelEnv's workers do, since the
@@ -180,6 +199,7 @@ class ManiSkillAsyncEnv(ManiSkillEnvBase):
                 context=use_forkserver(),
                 autoreset_mode=AutoresetMode.DISABLED,
                 copy=False,  # _observation copies out of the shared buffers itself
+                worker=_worker,
             )
         space = self._vec.single_observation_space
         if task.obs_mode == "state":

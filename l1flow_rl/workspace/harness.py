@@ -155,6 +155,8 @@ class Run:
         self.records: dict[str, list[Any]] = {}
         #: entries the job adds to eval.json and summary.json (e.g. its training ledger)
         self.report_extra: dict[str, Any] = {}
+        #: keys of ``report_extra`` that the files keep but the printed summary leaves out
+        self.report_unprinted: set[str] = set()
         self.best = -math.inf
         self._validates = bool(cfg.eval.enabled)  # the same on every rank (the evaluator: rank 0 only)
         self.resumed: dict[str, Any] | None = None
@@ -496,6 +498,6 @@ class Run:
         (plot or (lambda run: save_plots(run.history, run.evals, run.run_dir)))(self)
         save_history(self.history, self.evals, self.run_dir, **self.records)
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
-        print(format_summary(summary))
+        print(format_summary({k: v for k, v in summary.items() if k not in self.report_unprinted}))
         print(f"run directory: {self.run_dir}")
         return summary

@@ -136,5 +136,7 @@ def run_train(cfg: DictConfig) -> int:
         stages = [*ledger, own_stage(pcfg.name, trainer.step, tcfg.batch_size)]
         run.records["ledger"] = stages  # history.json (and the final checkpoints)
         run.report_extra.update(ledger=stages, total_steps_with_teacher=total_steps(stages))
+        if teacher is None:  # a plain run's ledger is its own steps: in the files, not worth a row
+            run.report_unprinted.update(("ledger", "total_steps_with_teacher"))
         run.finish(trainer.ema_actor, summary)
     return 0

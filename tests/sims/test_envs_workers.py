@@ -245,6 +245,51 @@ def test_a_process_exits_with_an_env_it_never_closed(tmp_path):
     assert "Traceback" not in proc.stderr  # the workers are killed, not left to fail on a closed pipe
 
 
+DROPPED = """\
+import sys
+
+from l1flow_rl import L1FlowActor, evaluate
+from l1flow_rl.envs import make_env
+
+
+def main(end):
+    env = make_env("maniskill_pushcube", num_envs=2, max_episode_steps=8)  # never closed
+    if end == "evaluate":  # the rollout helper, as docs/simulators.md shows it
+        actor = L1FlowActor.for_state(obs_dim=35, action_dim=4, down_dims=(16, 32))
+        evaluate(actor, env, episodes=2, seed=0)
+    else:
+        env.rand_step(env.reset())
+    print("done", flush=True)
+    if end == "sys.exit":
+        sys.exit(3)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])
+"""
+
+
+@pytest.mark.maniskill
+@pytest.mark.parametrize("end", ["return", "sys.exit", "evaluate"])
+def test_a_script_that_drops_an_unclosed_env_exits_quietly(tmp_path, end):
+    # the env, dropped when main() ends, is closed by gymnasium's __del__: SIGTERM (which the workers
+    # ignore) and closed pipes, on which each worker printed an EOFError/BrokenPipeError traceback
+    pytest.importorskip("mani_skill")
+    script = tmp_path / "dropped.py"
+    script.write_text(DROPPED)
+    proc = subprocess.run(
+        [sys.executable, str(script), end],
+        cwd=tmp_path,
+        env={**os.environ, "OMP_NUM_THREADS": "1"},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == (3 if end == "sys.exit" else 0), proc.stderr[-3000:]
+    assert proc.stdout.strip().splitlines()[-1] == "done"
+    assert "Traceback" not in proc.stderr and "Error" not in proc.stderr, proc.stderr[-3000:]
+
+
 JOBS_THEN_CHILDREN = """\
 import json
 import multiprocessing

@@ -5,6 +5,8 @@ end on the point-mass double."""
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import re
 from pathlib import Path
@@ -377,8 +379,18 @@ E2E = [
 def edm_teacher(tmp_path_factory):
     root = tmp_path_factory.mktemp("distill")
     data, run = root / "data", root / "edm"
-    assert main(["train", *E2E, "policy=edm", f"data_dir={data}", f"run_dir={run}"]) == 0
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["train", *E2E, "policy=edm", f"data_dir={data}", f"run_dir={run}"]) == 0
+    (root / "edm_stdout.txt").write_text(printed.getvalue())
     return root, run / "checkpoints" / "best.pt"
+
+
+def _summary_rows(printed: str) -> set[str]:
+    """The first words of the lines of the last printed summary table (between its dashed rules)."""
+    lines = printed.splitlines()
+    rules = [i for i, line in enumerate(lines) if line and set(line) == {"-"}]
+    return {line.split()[0] for line in lines[rules[-2] + 1 : rules[-1]] if line.strip()}
 
 
 def test_edm_trains_evaluates_and_rescores_at_another_step_count(edm_teacher):
@@ -387,6 +399,10 @@ def test_edm_trains_evaluates_and_rescores_at_another_step_count(edm_teacher):
     assert result["sampler"]["name"] == "edm_heun" and result["sampler"]["nfe"] == 35
     assert result["ledger"] == [{"stage": "own", "policy": "edm", "steps": 20, "batch_size": 16}]
     assert result["total_steps_with_teacher"] == 20
+    summary = json.loads((teacher.parents[1] / "summary.json").read_text())
+    assert summary["total_steps_with_teacher"] == 20  # in the files, but a plain run does not print it
+    rows = _summary_rows((root / "edm_stdout.txt").read_text())
+    assert "success_once" in rows and not rows & {"ledger", "total_steps_with_teacher"}
     out = root / "edm_eval19"
     args = [*TASK_OVERRIDES, f"checkpoint={teacher}", "eval.episodes=1", f"run_dir={out}"]
     assert main(["eval", *args, "policy.sampler_kwargs.steps=10"]) == 0
@@ -395,11 +411,12 @@ def test_edm_trains_evaluates_and_rescores_at_another_step_count(edm_teacher):
 
 
 @pytest.mark.parametrize("policy", ["consistency", "onedp_d", "onedp_s"])
-def test_a_student_trains_from_the_teacher_checkpoint_and_its_ledger_counts_both(edm_teacher, policy):
+def test_a_student_trains_from_the_teacher_checkpoint_and_its_ledger_counts_both(edm_teacher, policy, capsys):
     root, teacher = edm_teacher
     run = root / policy
     args = [*E2E, f"policy={policy}", f"teacher={teacher}", f"data_dir={root / 'data'}", f"run_dir={run}"]
     assert main(["train", *args]) == 0
+    assert {"ledger", "total_steps_with_teacher"} <= _summary_rows(capsys.readouterr().out)
     want = [
         {"stage": "teacher", "policy": "edm", "steps": 20, "batch_size": 16, "checkpoint": str(teacher)},
         {"stage": "own", "policy": policy, "steps": 20, "batch_size": 16},
