@@ -60,6 +60,11 @@ CPU_BUDGET: dict[str, list[str]] = {
     # at 0.042 to fit the cap)
     "dsrl_na": ["finetune.batch_size=128", "online.updates_per_step=0.084"],
     "filtered_bc": [],  # an L1 Flow step at batch 64 (~0.1 s), 0.084 per env step
+    "filtered_bc_delta": [],  # the same on delta-control tasks
+    # on the MLP network an update takes 0.35-0.67 s at batch 256 on one loaded core
+    # (finetune_cost_maniskill_pickcube_mlp.json): 0.5 updates per env step, the floor of the anchors'
+    # budgets this bench keeps (the preset's 1.0 doubles the run)
+    "flowq": ["online.updates_per_step=0.5"],
 }
 
 
