@@ -62,6 +62,7 @@ def _figures(run_dir: Path) -> dict:
 
 @pytest.mark.slow  # ~65 s on 2 busy cores: three launches of a process pool, two of eval
 def test_a_grid_killed_midway_resumes_to_the_figures_of_an_uninterrupted_one(tmp_path):
+    pytest.importorskip("hydra_plugins.hydra_joblib_launcher")  # the launchers extra
     whole, killed = tmp_path / "whole", tmp_path / "killed"
     whole.mkdir(), killed.mkdir()
     # the uninterrupted grid beside the one that will be killed
