@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Installs l1flow-rl into ./.venv on a fresh Debian/Ubuntu machine with Python 3.11.
-# Usage: ./install.sh [EXTRAS]      EXTRAS is a comma list from: maniskill, robosuite, pusht, dev, all
+# Usage: ./install.sh [EXTRAS]      EXTRAS is a comma list from: maniskill, robosuite, pusht, launchers, dev, all
 #                                   (default: maniskill, which the main job needs)
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")"

@@ -31,6 +31,7 @@ __all__ = [
     "restore_stop_signals",
     "signal_safe_factory",
     "simulator_forkserver",
+    "standard_start_method",
 ]
 
 #: what a simulator worker ignores: the run's stop signals (SIGTERM, SIGUSR1) and Ctrl-C's SIGINT
@@ -179,6 +180,22 @@ def _make_signal_safe(make: Callable, *args, **kwargs):
     return make(*args, **kwargs)
 
 
+def standard_start_method() -> None:
+    """Drop a process-wide start method that multiprocessing itself does not know, before this process
+    starts workers of its own.
+
+    joblib's loky workers (hydra's ``joblib`` launcher runs each job in one) set ``"loky"`` as the
+    process-wide start method. Every worker started from there, by forkserver or spawn, runs
+    ``multiprocessing.spawn.prepare``, which sets that name again in the worker and fails with
+    ``ValueError: cannot find context for 'loky'`` before the simulator starts. Reset, the default is
+    chosen again on first use (``fork`` on Linux), a name every child knows; the workers still start
+    by the method their own context names. Hand-written: neither joblib nor multiprocessing does it.
+    """
+    method = multiprocessing.get_start_method(allow_none=True)
+    if method is not None and method not in multiprocessing.get_all_start_methods():
+        multiprocessing.set_start_method(None, force=True)
+
+
 def signal_safe_factory(make: Callable) -> Callable:
     """``make`` (a worker's env factory) run after :func:`ignore_stop_signals` in a worker process
     (the main process keeps its handlers), for workers that do not come from
@@ -193,6 +210,7 @@ def signal_safe_factory(make: Callable) -> Callable:
     process is killed outright still exits when its pipe closes.
     """
     _kill_daemonic_workers_at_exit()
+    standard_start_method()
     return functools.partial(_make_signal_safe, make)
 
 
@@ -203,4 +221,5 @@ def simulator_forkserver(preload: list[str]) -> str:
     :func:`signal_safe_factory`)."""
     multiprocessing.set_forkserver_preload(["l1flow_rl.envs.forkserver_signals", *preload])
     _kill_daemonic_workers_at_exit()
+    standard_start_method()
     return "forkserver"

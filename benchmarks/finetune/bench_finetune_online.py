@@ -41,7 +41,7 @@ import sys
 from pathlib import Path
 
 from benchmarks.lib.common import machine_info, parse_args, save_results
-from benchmarks.lib.sweep import mean_and_spread
+from benchmarks.lib.stats import mean_and_spread
 from benchmarks.report.finetune import render_finetune_online
 
 #: budget departures from the presets on 2 shared CPU cores, with the cost figure that forces each

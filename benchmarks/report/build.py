@@ -2,7 +2,7 @@
 scripts saved: no number in either is typed by hand.
 
     python -m benchmarks.report            # rewrite RESULTS.md and the README's summary
-    python -m benchmarks.report --check    # exit 1, naming each stale section, if either differs
+    python -m benchmarks.report --check    # exit 1, naming each section that differs or is stale
 
 RESULTS.md holds one section per published table, grouped by what it measures; each section names
 its source files, when they were measured, on what machine and, where recorded, the command and
@@ -37,6 +37,7 @@ from benchmarks.report.speed import (
     render_sim_throughput,
     render_train_throughput,
 )
+from benchmarks.report.staleness import REPO, TRAILER, SectionStatus, section_status
 from benchmarks.report.success import (
     render_ablations,
     render_experts,
@@ -55,6 +56,7 @@ __all__ = [
     "build_finetune_block",
     "build_results",
     "build_summary",
+    "code_stale_sections",
     "main",
     "stale_sections",
 ]
@@ -73,30 +75,59 @@ OVERVIEW_PLOT = "success_overview.png"
 class Section:
     """One published table: the files whose names match ``pattern``, under ``title``. ``render`` takes
     one file's data (one block per file, each under its source line) or, when ``merged``, the list of
-    (name, data) of every matching file (one table, its sources listed under it, numbered)."""
+    (name, data) of every matching file (one table, its sources listed under it, numbered).
+    ``produced_by``: what code produces its figures (names of
+    :data:`~benchmarks.report.staleness.PRODUCERS`), against which its files' commits date it."""
 
     pattern: str
     title: str
     render: Callable[[Any], str]
     merged: bool = False
+    produced_by: tuple[str, ...] = ()
 
 
 def _arms(files: list[tuple[str, dict]]) -> str:
     return finetune_overview.arms_table([(Path(name), data) for name, data in files])
 
 
+#: what produces a trained policy's figures (names of ``staleness.PRODUCERS``)
+TRAINED = ("training", "evaluation", "the policy")
+#: what produces a network's or a sampler's speed
+POLICY = ("the policy",)
+
 #: RESULTS.md's groups in order, each a heading and its sections
 GROUPS: dict[str, list[Section]] = {
     "Success, convergence and ablations": [
-        Section(r"main_job\.json", "Main job", render_main_job),
-        Section(r"success_.*\.json", "Success and convergence, every task and method", render_success, True),
-        Section(r"training_.*\.json", "Trained policies (default budget, one seed)", render_training_runs),
-        Section(r"open_loop_.*\.json", "Open-loop action error of the trained runs", render_open_loop),
-        Section(r"ablations_.*\.json", "Ablations", render_ablations),
+        Section(r"main_job\.json", "Main job", render_main_job, produced_by=(*TRAINED, "the experts")),
+        Section(
+            r"success_.*\.json",
+            "Success and convergence, every task and method",
+            render_success,
+            True,
+            produced_by=TRAINED,
+        ),
+        Section(
+            r"training_.*\.json",
+            "Trained policies (default budget, one seed)",
+            render_training_runs,
+            produced_by=TRAINED,
+        ),
+        Section(
+            r"open_loop_.*\.json",
+            "Open-loop action error of the trained runs",
+            render_open_loop,
+            produced_by=TRAINED,
+        ),
+        Section(r"ablations_.*\.json", "Ablations", render_ablations, produced_by=TRAINED),
     ],
     "Multi-modality": [
-        Section(r"multimodal\.json", "Multi-modality (toy)", render_multimodal),
-        Section(r"pusht_modes\.json", "Multi-modality on PushT: which way around the T", render_pusht_modes),
+        Section(r"multimodal\.json", "Multi-modality (toy)", render_multimodal, produced_by=TRAINED),
+        Section(
+            r"pusht_modes\.json",
+            "Multi-modality on PushT: which way around the T",
+            render_pusht_modes,
+            produced_by=(*TRAINED, "the experts"),
+        ),
     ],
     "Speed: inference and training": [
         Section(
@@ -104,46 +135,91 @@ GROUPS: dict[str, list[Section]] = {
             "Per-chunk latency, every sampler",
             render_latency,
             True,
+            produced_by=POLICY,
         ),
         Section(
-            r"latency_cuda.*\.json", "CUDA latency at batch 1: eager, graph, compile", render_latency_cuda
-        ),
-        Section(r"image_latency\.json", "Image policy: latency against its floor", render_image_latency),
-        Section(
-            r"image_train\.json", "Image policy: training from the memory-mapped buffer", render_image_train
-        ),
-        Section(
-            r"train_throughput_.*\.json", "Training step against the bare update", render_train_throughput
+            r"latency_cuda.*\.json",
+            "CUDA latency at batch 1: eager, graph, compile",
+            render_latency_cuda,
+            produced_by=POLICY,
         ),
         Section(
-            r"export_latency\.json", "Deployable policy: exported program and ONNX", render_export_latency
+            r"image_latency\.json",
+            "Image policy: latency against its floor",
+            render_image_latency,
+            produced_by=POLICY,
         ),
-        Section(r"network_cost\.json", "State denoisers: the UNet against the MLP", render_network_cost),
+        Section(
+            r"image_train\.json",
+            "Image policy: training from the memory-mapped buffer",
+            render_image_train,
+            produced_by=("training", "the policy"),
+        ),
+        Section(
+            r"train_throughput_.*\.json",
+            "Training step against the bare update",
+            render_train_throughput,
+            produced_by=("training", "the policy"),
+        ),
+        Section(
+            r"export_latency\.json",
+            "Deployable policy: exported program and ONNX",
+            render_export_latency,
+            produced_by=(*POLICY, "export"),
+        ),
+        Section(
+            r"network_cost\.json",
+            "State denoisers: the UNet against the MLP",
+            render_network_cost,
+            produced_by=POLICY,
+        ),
     ],
     "Fine-tuning": [
-        Section(r"finetune_online_.*\.json", "Online fine-tuning: every arm", _arms, True),
         Section(
-            r"finetune_cost_.*\.json", "Fine-tuning: cost of an update and of acting", render_finetune_cost
+            r"finetune_online_.*\.json",
+            "Online fine-tuning: every arm",
+            _arms,
+            True,
+            produced_by=(*TRAINED, "fine-tuning"),
+        ),
+        Section(
+            r"finetune_cost_.*\.json",
+            "Fine-tuning: cost of an update and of acting",
+            render_finetune_cost,
+            produced_by=(*POLICY, "fine-tuning"),
         ),
         Section(
             r"noise_authority.*\.json",
             "Steering authority of the input noise (what DSRL can move)",
             render_noise_authority,
+            produced_by=(*POLICY, "fine-tuning"),
         ),
         Section(
             r"critic_bias_.*\.json",
             "Critic bias: Q on the replay data against its Monte-Carlo value",
             render_critic_bias,
+            produced_by=(*TRAINED, "fine-tuning"),
         ),
     ],
     "Simulators, experts and data": [
-        Section(r"env_throughput_.*\.json", "Environment throughput", render_env_throughput),
-        Section(r"sampler\.json", "Replay-buffer sampling", render_sampler),
-        Section(r"(pusht|robosuite)_experts?\.json", "Scripted experts", render_experts),
+        Section(
+            r"env_throughput_.*\.json",
+            "Environment throughput",
+            render_env_throughput,
+            produced_by=("the simulators",),
+        ),
+        Section(r"sampler\.json", "Replay-buffer sampling", render_sampler, produced_by=("training",)),
+        Section(
+            r"(pusht|robosuite)_experts?\.json",
+            "Scripted experts",
+            render_experts,
+            produced_by=("the experts", "the simulators"),
+        ),
         Section(
             r"pusht_env\.json|robosuite_throughput_.*\.json",
             "Adapters against the raw simulator",
             render_sim_throughput,
+            produced_by=("the simulators",),
         ),
     ],
 }
@@ -171,9 +247,14 @@ def _figures(path: Path) -> list[Path]:
     return [plot] if plot.is_file() else sorted(path.parent.glob(f"{path.stem}_*.png"))
 
 
-def _section(section: Section, files: list[tuple[Path, dict]], doc: Path) -> list[str]:
-    """One published table under its heading, with each source file, when and where it was measured."""
-    parts = [f"### {section.title}", ""]
+def _status(section: Section, files: list[tuple[Path, dict]], repo: Path) -> SectionStatus:
+    return section_status([(p.name, d) for p, d in files], section.produced_by, repo)
+
+
+def _section(section: Section, files: list[tuple[Path, dict]], doc: Path, repo: Path = REPO) -> list[str]:
+    """One published table under its heading: whether its code changed since it was measured (its
+    status), then each source file, when and where it was measured."""
+    parts = [f"### {section.title}", "", _status(section, files, repo).line, ""]
     if section.merged:
         parts += [_render(section.render, [(p.name, d) for p, d in files]), ""]
         parts += ["Sources:", ""]
@@ -226,14 +307,12 @@ def build_summary(results: Path = RESULTS, readme: Path = Path("README.md"), doc
     return "\n".join(parts)
 
 
-def build_results(results: Path = RESULTS, doc: Path = RESULTS_DOC) -> str:
-    """The whole of RESULTS.md: the summary, then one section per published table in its group."""
-    from benchmarks.report.defaults_evidence import evidence_table
-
+def _published(results: Path) -> tuple[list[tuple[str, Section, list[tuple[Path, dict]]]], list[str]]:
+    """Every published table with its files ((group, section, [(path, data)])), and the names of the
+    files no section takes; quick-mode files are neither."""
     files = [(p, _load(p)) for p in sorted(results.glob("*.json"))]
     files = [(p, d) for p, d in files if not _quick(d)]
-    sections: dict[str, list[str]] = {group: [] for group in GROUPS}
-    rendered = set()
+    found, rendered = [], set()
     for group, entries in GROUPS.items():
         for section in entries:
             matched = [
@@ -241,15 +320,38 @@ def build_results(results: Path = RESULTS, doc: Path = RESULTS_DOC) -> str:
             ]
             if matched:
                 rendered.update(p.name for p, _ in matched)
-                sections[group] += _section(section, matched, doc)
+                found.append((group, section, matched))
+    return found, [p.name for p, _ in files if p.name not in rendered]
+
+
+def code_stale_sections(results: Path = RESULTS, repo: Path = REPO) -> list[tuple[str, SectionStatus]]:
+    """The published tables whose producing code changed after their files' commits: (title,
+    status), the status naming each file and the first commit that changed it
+    (:mod:`~benchmarks.report.staleness`). Files that record no commit are not among them."""
+    found, _ = _published(results)
+    statuses = [(section.title, _status(section, files, repo)) for _, section, files in found]
+    return [(title, status) for title, status in statuses if status.state == "stale"]
+
+
+def build_results(results: Path = RESULTS, doc: Path = RESULTS_DOC, repo: Path = REPO) -> str:
+    """The whole of RESULTS.md: the summary, then one section per published table in its group, each
+    with its status against the code of ``repo`` (a git checkout)."""
+    from benchmarks.report.defaults_evidence import evidence_table
+
+    found, unrendered = _published(results)
+    sections: dict[str, list[str]] = {group: [] for group in GROUPS}
+    for group, section, matched in found:
+        sections[group] += _section(section, matched, doc, repo)
     parts = [
         "# Results",
         "",
         f"Generated by `python -m benchmarks.report` from the JSON files under `{results.as_posix()}/`: no "
         "number here is typed by hand, and `python -m benchmarks.report --check` (run in CI) fails, naming "
-        "the section, when this file differs from what those files give. Each section names its source "
-        "files, when they were measured and on what machine (files saved before the scripts recorded "
-        'the time, command and commit say "not recorded"). The scripts that write them: '
+        "the section, when this file differs from what those files give, and when the code that produces "
+        "a section changed after the commit its files were measured at (its status: stale). Each section "
+        "names its source files, when they were measured and on what machine (files saved before the "
+        'scripts recorded the time, command and commit say "not recorded"; such a section is unverified: '
+        "it cannot be dated against the code). The scripts that write them: "
         "[benchmarks/README.md](README.md).",
         "",
         "## Summary",
@@ -262,7 +364,6 @@ def build_results(results: Path = RESULTS, doc: Path = RESULTS_DOC) -> str:
     evidence = evidence_table(results)
     if evidence:
         parts += ["## Defaults and the measurements behind them", "", evidence, ""]
-    unrendered = [p.name for p, _ in files if p.name not in rendered]
     if unrendered:
         parts += ["## Other saved results", ""]
         parts += ["No section yet: " + ", ".join(f"`{n}`" for n in unrendered) + ".", ""]
@@ -297,10 +398,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--results", default=str(RESULTS), help="the folder of saved JSON")
     parser.add_argument("--out", default=str(RESULTS_DOC), help="the generated results document")
     parser.add_argument(
-        "--check", action="store_true", help="exit 1 when RESULTS.md or the README's summary differs"
+        "--check",
+        action="store_true",
+        help="exit 1 when RESULTS.md or the README's summary differs, or a section's code changed since "
+        "its files were measured",
+    )
+    parser.add_argument(
+        "--repo", default=str(REPO), help="the git checkout whose history dates the files (default: this one)"
     )
     args = parser.parse_args(argv)
-    readme, results, out = Path(args.readme), Path(args.results), Path(args.out)
+    readme, results, out, repo = Path(args.readme), Path(args.results), Path(args.out), Path(args.repo)
     text = readme.read_text()
     if BEGIN not in text or END not in text:
         print(f"{readme}: no results markers ({BEGIN} ... {END}); add them where the summary goes")
@@ -320,17 +427,26 @@ def main(argv: list[str] | None = None) -> int:
         if old_block != block:
             stale_blocks.append(what)
         new_readme = new_readme.replace(old_block, block)
-    new_doc = build_results(results, out)
+    new_doc = build_results(results, out, repo)
     if args.check:
         problems = [f"{readme}: {what} between the markers is out of date" for what in stale_blocks]
         if not out.is_file():
             problems.append(f"{out}: missing")
         elif stale := stale_sections(out.read_text(), new_doc):
             problems.append(f"{out}: out of date in " + "; ".join(f"'{s}'" for s in stale))
+        if problems:
+            problems.append("run python -m benchmarks.report to rebuild them from the saved JSON")
+        stale_code = code_stale_sections(results, repo)
+        for title, status in stale_code:
+            reasons = "; ".join(status.reasons)
+            problems.append(f"{out}: '{title}' is stale, its code changed since it was measured: {reasons}")
+        if stale_code:
+            problems.append(
+                "re-measure each stale section (its files' commands), or, where a change moves no figure, "
+                f"say so in its commit message with a '{TRAILER} <why>' line"
+            )
         for problem in problems:
             print(problem)
-        if problems:
-            print("run python -m benchmarks.report to rebuild them from the saved JSON")
         return 1 if problems else 0
     readme.write_text(new_readme)
     out.write_text(new_doc)

@@ -93,7 +93,7 @@ def _convergence_row(block: dict[str, Any]) -> list[str] | None:
     verdict. A seed still rising at its last validation has only a lower bound on that figure, so a
     ratio involving one is a bound: "≥" when the other method's seeds were still rising, "≤" when L1
     Flow's were, and no verdict from it when both were."""
-    from benchmarks.lib.sweep import convergence_steps
+    from benchmarks.lib.stats import convergence_steps
 
     steps = {k: convergence_steps(b) for k, b in block.items() if k == "l1flow" or k in MULTI_STEP}
     if not steps.get("l1flow"):

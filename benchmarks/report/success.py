@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from benchmarks.lib.sweep import convergence_steps
+from benchmarks.lib.stats import convergence_steps
 from benchmarks.report.tables import interval, num, table
 from l1flow_rl.workspace.run_clock import CPU_SCOPE
 

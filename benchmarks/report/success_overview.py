@@ -83,7 +83,7 @@ def overview_table(results: Path) -> str | None:
 
 def overview_figure(results: Path, out: Path) -> bool:
     """Save every comparing file's validation curves in one figure; False when there are none."""
-    from benchmarks.lib.sweep import plot_success_curves
+    from benchmarks.lib.figures import plot_success_curves
 
     settings = _settings(results)
     if not settings:

@@ -79,10 +79,24 @@ def machine_text(d: dict) -> str:
 
 def source_line(path: Path, data: dict, doc: Path) -> str:
     """The file (linked), when it was measured, its machine, and the command and commit that rerun it
-    where the file records them (files saved before the scripts recorded them say so)."""
+    where the file records them (files saved before the scripts recorded them say so). A file
+    collected from a grid's runs names the grid's command, the runs' commits and launchers, then the
+    command that collected it."""
+    from benchmarks.report.staleness import measured_range
+
     record = data.get("provenance") or {}
-    when = record.get("measured_at", "not recorded")
+    runs = record.get("runs") if isinstance(record.get("runs"), dict) else None
+    when = measured_range(data) or "not recorded"
     text = f"[`{path.name}`]({link(path, doc)}): measured: {when}; machine: {machine_text(data)}"
+    if runs is not None:
+        commits = ", ".join(f"`{c[:12]}`" for c in runs.get("commits") or []) or "not recorded"
+        text += f"; runs: `{runs['command']}`" if runs.get("command") else "; runs"
+        text += f" at commit {commits}"
+        if runs.get("launchers"):
+            text += f" (launcher {', '.join(runs['launchers'])})"
+        if record.get("command"):
+            text += f"; collected by `{record['command']}`"
+        return text + "."
     command = record.get("command") or data.get("command")
     if command:
         text += f"; command: `{command}`"

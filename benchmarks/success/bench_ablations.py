@@ -1,58 +1,105 @@
-"""The paper's ablations (its Tables 4-6) on one ManiSkill state task, at this machine's scale.
+"""The paper's ablations (its Tables 4-6) on one ManiSkill state task, at this machine's scale,
+collected from an ablation grid's runs.
 
 Every variant is a loss option (retrained) or a sampler swap (the same trained network re-scored):
 
-* loss options, each trained over ``--seeds``: the L1 Flow default (x-space L1, mixed logit-normal t),
-  MSE instead of L1, velocity-space loss instead of x-space, uniform t, Beta(1, 1.5) t;
-* sampler swaps on the default network: t_first in 0.1 ... 0.9, and sample-prediction Euler with
-  1, 2, 5 and 10 steps against the two-step schedule.
+* loss options, each trained over the grid's seeds (``configs/grid/ablation/``): the L1 Flow default
+  (x-space L1, mixed logit-normal t), MSE instead of L1, velocity-space loss instead of x-space,
+  uniform t, Beta(1, 1.5) t;
+* sampler swaps on the default network (``configs/rescore/ablation_*.yaml``): t_first in 0.1 ... 0.9,
+  and sample-prediction Euler with 1, 2, 5 and 10 steps against the two-step schedule.
+
+The grid is a hydra multirun, run with any launcher and resumable like every grid::
+
+    l1flow-rl train -m +grid=ablations_pushcube
+    l1flow-rl eval -m +grid=ablations_pushcube +rescore=ablation_t_first
+    l1flow-rl eval -m +grid=ablations_pushcube +rescore=ablation_euler
+    python -m benchmarks.success.bench_ablations runs/grid/ablations_pushcube
 
 Saved: ``benchmarks/results/ablations_<task>_<demos>demos_<steps>steps.json`` (per variant:
-success_once mean and spread over seeds, per-seed values with their 95 % intervals) and a PNG. Runs
-live under ``--root``/<the same setting name>/ and resume like ``bench_success``'s; ``--jobs N`` trains
-N loss variants, then re-scores N sampler swaps, side by side; one job re-scores each default run
-right after training it, so that a stopped sweep leaves whole runs.
-Pick a setting below the ceiling, or every variant ties: PushCube with 100 demonstrations saturates
-near 0.9 in 2,500 steps.
-
-    python -m benchmarks.success.bench_ablations --task maniskill_pushcube --demos 20 --seeds 0 1 2 --jobs 2
+success_once mean and spread over seeds, per-seed values with their 95 % intervals; the runs'
+commits, launchers and config under ``provenance.runs``) and a PNG. Pick a setting below the
+ceiling, or every variant ties: PushCube with 100 demonstrations saturates near 0.9 in 2,500 steps.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any
 
-from benchmarks.lib.common import format_table, machine_info, parse_args, save_results
-from benchmarks.lib.sweep import (
-    Run,
-    make_demos,
-    mean_and_spread,
-    rescore,
-    rescore_side_by_side,
-    seed_record,
-    train,
-    train_side_by_side,
+from benchmarks.lib.common import (
+    RESULTS_DIR,
+    format_table,
+    machine_info,
+    parse_args,
+    provenance,
+    save_results,
 )
+from benchmarks.lib.runs import Run, grid_provenance, grid_runs, seed_record
+from benchmarks.lib.stats import mean_and_spread
+from l1flow_rl.workspace.checkpoint import flatten_config
 
-#: retrained variants: name -> loss options (policy=l1flow otherwise)
-LOSS_VARIANTS: dict[str, list[str]] = {
-    "default": [],
-    "mse": ["policy.loss_kwargs.loss_type=mse"],
-    "v_space_loss": ["policy.loss_kwargs.loss_space=v"],
-    "uniform_t": ["policy.loss_kwargs.timesteps=uniform"],
-    "beta_t": ["policy.loss_kwargs.timesteps=beta"],
-}
-#: sampler swaps on the default network: name -> eval overrides
-SAMPLER_VARIANTS: dict[str, list[str]] = {
-    **{
-        f"t_first_{t}": ["policy.sampler=two_step", f"policy.sampler_kwargs.t_first={t}"]
-        for t in (0.1, 0.3, 0.5, 0.7, 0.9)
-    },
-    **{f"euler{k}": ["policy.sampler=euler", f"policy.sampler_kwargs.steps={k}"] for k in (1, 2, 5, 10)},
-}
+__all__ = ["main", "variants"]
+
+#: the grid's config group of loss variants (``configs/grid/ablation/<name>.yaml``)
+VARIANT_GROUP = "+grid/ablation"
+
+
+def _variant(run: Run) -> str:
+    """A run's loss variant: its ``+grid/ablation=<name>`` override, else its folder's first part."""
+    for o in run.overrides:
+        if o.startswith(f"{VARIANT_GROUP}="):
+            return o.split("=", 1)[1]
+    return run.name.split("/", 1)[0]
+
+
+def _natural(name: str) -> tuple:
+    """Sort key: letters, then the number a name ends with (euler2 before euler10)."""
+    head = name.rstrip("0123456789.")
+    tail = name[len(head) :]
+    try:
+        return (head, float(tail))
+    except ValueError:
+        return (head, 0.0)
+
+
+def _options(run: Run, default: Run | None) -> list[str]:
+    """What a loss variant's runs change against the default's: ``key=value`` of every ``policy.``
+    field that differs."""
+    if default is None:
+        return []
+    a = flatten_config(run.config.get("policy") or {}, "policy.")
+    b = flatten_config(default.config.get("policy") or {}, "policy.")
+    return [f"{k}={v}" for k, v in sorted(a.items()) if b.get(k) != v]
+
+
+def variants(runs: list[Run]) -> tuple[dict[str, Any], list[str]]:
+    """(variant -> {kind, options, evals}, what is missing) from an ablation grid's runs: each loss
+    variant's test figures, then each re-scoring of the default's networks."""
+    by_variant: dict[str, list[Run]] = {}
+    for r in runs:
+        by_variant.setdefault(_variant(r), []).append(r)
+    missing = [f"{r.name} (training)" for r in runs if not r.done]
+    default_runs = sorted(by_variant.get("default", []), key=lambda r: r.setting("seed", 0))
+    found: dict[str, Any] = {}
+    for name in sorted(by_variant, key=lambda n: n != "default"):  # the default first, then launch order
+        done = sorted((r for r in by_variant[name] if r.done), key=lambda r: r.setting("seed", 0))
+        if done:
+            options = _options(done[0], default_runs[0] if default_runs else None)
+            found[name] = {"kind": "loss", "options": options, "evals": [r.result() for r in done]}
+    swaps = sorted({n for r in default_runs for n in r.rescorings()}, key=_natural)
+    for swap in swaps:
+        scored = [r for r in default_runs if swap in r.rescorings()]
+        missing += [f"{r.name} (re-scoring {swap})" for r in default_runs if r not in scored]
+        evals = [json.loads(r.rescorings()[swap].read_text()) for r in scored]
+        sampler = evals[0].get("sampler") or {}
+        options = [f"policy.sampler={sampler.get('name')}"]
+        options += [f"policy.sampler_kwargs.{k}={v}" for k, v in (sampler.get("kwargs") or {}).items()]
+        found[swap] = {"kind": "sampler", "options": options, "evals": evals}
+    return found, missing
 
 
 def _plot(results: dict[str, Any], path: Path) -> None:
@@ -77,71 +124,45 @@ def _plot(results: dict[str, Any], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--task", default="maniskill_pushcube")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--steps", type=int, default=2500)
-    parser.add_argument("--eval-episodes", type=int, default=50)
-    parser.add_argument("--demos", type=int, default=100)
-    parser.add_argument("--root", default="runs/bench_ablations")
+    parser.add_argument("grid", help="the grid's folder (hydra.sweep.dir of l1flow-rl train -m +grid=...)")
+    parser.add_argument("--partial", action="store_true", help="write what is finished; list what is not")
+    parser.add_argument("--out-dir", default=str(RESULTS_DIR), help="where the results file goes")
     parser.add_argument(
-        "--jobs",
-        type=int,
-        default=1,
-        help="loss variants trained side by side, cores/jobs torch threads each (as bench_success)",
+        "--quick", action="store_true", help="a check of a tiny grid: the file says so and is never reported"
     )
-    parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not the claim")
-    parser.add_argument("extra", nargs="*", help="hydra overrides applied to every run")
     args = parse_args(parser, argv)
-    if args.quick:
-        args.steps, args.eval_episodes, args.demos = 4, 1, 2
-        args.extra = [*args.extra, "task.max_episode_steps=16"]
-    # the setting names the folder: runs of another demonstration count are never read back as these
-    setting = f"{args.task}_{args.demos}demos_{args.steps}steps"
-    root = Path(args.root) / setting
-    common = [
-        f"task={args.task}",
-        "policy=l1flow",
-        f"demos.num={args.demos}",
-        f"train.steps={args.steps}",
-        f"eval.episodes={args.eval_episodes}",
-        *args.extra,
-    ]
-    results: dict[str, Any] = {}
-    data_dir = Path(args.root) / "data"
-    grid = {
-        name: [
-            Run(f"{name}/seed{s}", [*common, f"seed={s}", *options], root / name / f"seed{s}")
-            for s in args.seeds
-        ]
-        for name, options in LOSS_VARIANTS.items()
-    }
-    default_runs = grid["default"]
-    task = [o for o in args.extra if o.startswith("task.")]  # re-scoring must see the same task
-    swaps = {n: [*o, f"eval.episodes={args.eval_episodes}", *task] for n, o in SAMPLER_VARIANTS.items()}
-    if args.jobs > 1:
-        make_demos([o for o in common if o.startswith(("task", "demos."))], data_dir, root / "demos.log")
-        train_side_by_side([r for runs in grid.values() for r in runs], data_dir, args.jobs)
-        # side by side first; the loops below read them back
-        rescore_side_by_side([(r, n, o) for n, o in swaps.items() for r in default_runs], args.jobs)
-    for name, runs in grid.items():
-        evals = []
-        for r in runs:
-            evals.append(train(r, data_dir))
-            if name == "default":  # its swaps right away: a stopped sweep leaves whole runs
-                for swap, overrides in swaps.items():
-                    rescore(r, swap, overrides)
-        results[name] = {"kind": "loss", "options": LOSS_VARIANTS[name], "evals": evals}
-    for name, overrides in swaps.items():
-        evals = [rescore(r, name, overrides) for r in default_runs]
-        results[name] = {"kind": "sampler", "options": SAMPLER_VARIANTS[name], "evals": evals}
+    runs = grid_runs(args.grid)
+    if not runs:
+        print(f"no training runs under {args.grid} (a grid's hydra.sweep.dir)", file=sys.stderr)
+        return 2
+    results, missing = variants(runs)
+    if missing:
+        print("not finished:\n  " + "\n  ".join(missing), file=sys.stderr)
+        if not args.partial:
+            print("finish the grid (relaunch its commands), or pass --partial", file=sys.stderr)
+            return 2
     for block in results.values():
         evals = block.pop("evals")
         block["success_once"] = mean_and_spread([e["success_once"] for e in evals])
         block["per_seed"] = [seed_record(e) for e in evals]
-    figures = {"machine": machine_info(), "quick": args.quick, "args": vars(args), "variants": results}
-    out = Path("benchmarks/results") / f"ablations_{setting}.json"
-    if args.quick:
-        out = Path(args.root) / f"ablations_{setting}_quick.json"
+    first = runs[0]
+    setting = {
+        "grid": Path(args.grid).as_posix(),
+        "task": first.setting("task.name"),
+        "seeds": sorted({r.setting("seed") for r in runs}),
+        "steps": first.setting("train.steps"),
+        "eval_episodes": first.setting("eval.episodes"),
+        "demos": first.setting("demos.num"),
+    }
+    name = f"{setting['task']}_{setting['demos']}demos_{setting['steps']}steps"
+    figures = {
+        "machine": machine_info(),
+        "quick": args.quick,
+        "args": setting,
+        "variants": results,
+        "provenance": {**(provenance() or {}), "runs": grid_provenance([args.grid], runs)},
+    }
+    out = Path(args.out_dir) / f"ablations_{name}{'_quick' if args.quick else ''}.json"
     save_results(out, figures)
     _plot(results, out.with_suffix(".png"))
     rows = [

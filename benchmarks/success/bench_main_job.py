@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 
 from benchmarks.lib.common import machine_info, parse_args, save_results
-from benchmarks.lib.sweep import Run, read_history
+from benchmarks.lib.runs import Run, read_history
 
 BUDGET_S = 8 * 60
 TARGET_SUCCESS = 0.95

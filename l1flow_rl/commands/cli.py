@@ -12,6 +12,18 @@ Every run gets its own directory (``run_dir``; by default ``hydra.run.dir`` of `
 ``<num>_<task>_<policy>_seed<seed>`` folder per job. Before any work, every job's config is composed and
 validated (:mod:`l1flow_rl.config.validate`); a bad key or value exits with code 2, naming it.
 
+A benchmark grid is a config of the ``grid`` group (``configs/grid/``): its budgets, its sweep
+(``hydra.sweeper.params``), its folder (``hydra.sweep.dir``, ``hydra.sweep.subdir``, which the defaults
+above do not replace) and ``resume: auto``, run with any hydra launcher::
+
+    l1flow-rl train -m +grid=success_maniskill                                 # one job at a time
+    l1flow-rl train -m +grid=success_maniskill hydra/launcher=joblib hydra.launcher.n_jobs=2
+    l1flow-rl eval -m +grid=success_maniskill +rescore=ddim16       # re-score (configs/rescore/)
+
+Relaunched, it skips finished jobs and resumes interrupted ones (``resume=auto``). A job in another
+process (joblib, submitit, ray) first imports the modules that registered a simulator, an expert or
+a loss in the launching process, so a user's plug-ins work there too.
+
 Errors a user can fix (:class:`~l1flow_rl.errors.UserInputError`: a missing or corrupt data file or
 checkpoint, a busy run directory, a run that diverged) print one line,
 ``l1flow-rl <command>: <what is wrong and what to do>``, and exit with code 2; other exceptions are
@@ -32,7 +44,7 @@ import os
 import shlex
 import sys
 import textwrap
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +64,11 @@ from l1flow_rl.config import CONFIG_DIR, AppConfig
 from l1flow_rl.config.network import check_moved_keys
 from l1flow_rl.config.overrides import open_dict_overrides, user_overrides
 from l1flow_rl.config.validate import ConfigValidationError, validate_config
+from l1flow_rl.envs.registry import registered_simulators
+from l1flow_rl.envs.workers import standard_start_method
 from l1flow_rl.errors import RunPreempted, UserInputError
+from l1flow_rl.experts.registry import registered_experts
+from l1flow_rl.objectives.registry import LOSSES
 from l1flow_rl.workspace.run_lock import hold_run_dir
 
 __all__ = ["COMMANDS", "RUN_DIRS", "compose_config", "main"]
@@ -123,12 +139,13 @@ def _create_hydra(command: str, config_dir: str | None = None) -> Any:
     return Hydra.create_main_hydra2(task_name=command, config_search_path=search_path)
 
 
-def _compose(hydra: Any, overrides: Sequence[str]) -> DictConfig:
-    """The full config (with hydra's node) of one run of ``overrides``."""
+def _compose(hydra: Any, overrides: Sequence[str], mode: RunMode = RunMode.RUN) -> DictConfig:
+    """The full config (with hydra's node) of one run of ``overrides`` (``mode`` MULTIRUN: of the
+    sweep, its sweep values left out)."""
     return hydra.compose_config(
         config_name=_CONFIG_NAME,
         overrides=list(overrides),
-        run_mode=RunMode.RUN,
+        run_mode=mode,
         with_log_configuration=False,
     )
 
@@ -144,8 +161,23 @@ def _app_config(full: DictConfig) -> DictConfig:
     return cfg
 
 
-def _run_dir_overrides(command: str, overrides: Sequence[str], multirun: bool) -> list[str]:
-    """hydra overrides that put the run where ``run_dir`` says, or in the command's default place."""
+def _configured_sweep(hydra: Any, overrides: Sequence[str]) -> set[str]:
+    """The ``hydra.sweep`` fields (``dir``, ``subdir``) that a config the command line adds (a
+    grid) sets to other than ``configs/config.yaml``'s: the command's default folder does not
+    replace them."""
+
+    def sweep(given: Sequence[str]) -> dict[str, Any]:
+        return OmegaConf.to_container(_compose(hydra, given, RunMode.MULTIRUN).hydra.sweep, resolve=False)
+
+    default, composed = sweep([]), sweep(overrides)
+    return {key for key in ("dir", "subdir") if composed.get(key) != default.get(key)}
+
+
+def _run_dir_overrides(
+    command: str, overrides: Sequence[str], multirun: bool, configured: set[str] = frozenset()
+) -> list[str]:
+    """hydra overrides that put the run where ``run_dir`` says, or in the command's default place
+    (a sweep: unless ``configured`` names the field, set by a grid's config)."""
     key = "hydra.sweep.dir" if multirun else "hydra.run.dir"
     given = [o.split("=", 1)[1] for o in overrides if o.lstrip("+").startswith("run_dir=")]
     if any(o.startswith(f"{key}=") for o in overrides):
@@ -153,9 +185,9 @@ def _run_dir_overrides(command: str, overrides: Sequence[str], multirun: bool) -
     extra = []
     if given and given[-1] not in ("null", "None", ""):
         extra.append(f"{key}={given[-1]}")
-    elif command in RUN_DIRS:
+    elif command in RUN_DIRS and not (multirun and "dir" in configured):
         extra.append(f"{key}={RUN_DIRS[command]}/{'multirun_' if multirun else ''}{_STAMP}")
-    if multirun and command in RUN_DIRS:
+    if multirun and command in RUN_DIRS and "subdir" not in configured:
         extra.append("hydra.sweep.subdir=${hydra.job.num}")
     return extra
 
@@ -186,9 +218,12 @@ def compose_config(
     return cfg
 
 
-def _sweep_jobs(overrides: Sequence[str]) -> list[list[str]]:
-    """The override list of every job of a sweep, as hydra's basic sweeper expands it."""
-    parsed = OverridesParser.create().parse_overrides(list(overrides))
+def _sweep_jobs(hydra: Any, overrides: Sequence[str]) -> list[list[str]]:
+    """The override list of every job of a sweep, as hydra's basic sweeper expands it: the config's
+    ``hydra.sweeper.params`` (a grid's), then the command line's, which wins for a key in both."""
+    params = _compose(hydra, overrides, RunMode.MULTIRUN).hydra.sweeper.get("params") or {}
+    given = [*(f"{k}={v}" for k, v in params.items()), *overrides]
+    parsed = OverridesParser.create().parse_overrides(given)
     return [job for batch in BasicSweeper.split_arguments(parsed, None) for job in batch]
 
 
@@ -211,11 +246,42 @@ def _resume_command(command: str, overrides: Sequence[str], run_dir: Path) -> st
     return " ".join(shlex.quote(w) for w in words)
 
 
-def _job(command: str, func: Callable[[DictConfig], Any]) -> Callable[[DictConfig], int]:
-    """The task function hydra runs: ``run_dir`` becomes the job's output directory; a user's
-    error is one line and exit code 2 (a sweep goes on with its next job)."""
+def _plugin_modules() -> list[str]:
+    """The modules outside the library whose import registered a simulator, an expert or a loss in
+    this process (a user's package, a test double): a job that a launcher runs in another process
+    imports them again first, so that it sees the same registries. ``__main__`` cannot be imported
+    again: a script that registers plug-ins at its top level works with the in-process launcher only."""
+    found = [spec.factory for spec in registered_simulators().values()]
+    found += [spec.make for spec in registered_experts().values()]
+    found += list(LOSSES.values())
+    modules = {getattr(obj, "__module__", None) for obj in found if callable(obj)}
+    return sorted(m for m in modules if m and m != "__main__" and m.split(".")[0] != "l1flow_rl")
 
-    def task(cfg: DictConfig) -> int:
+
+class _Job:
+    """The task function hydra runs: ``run_dir`` becomes the job's output directory; a user's
+    error is one line and exit code 2 (a sweep goes on with its next job).
+
+    Picklable by reference, for launchers that run jobs in other processes: there it imports the
+    launching process's plug-in modules (:func:`_plugin_modules`) and leaves a start method
+    multiprocessing does not know (joblib's ``loky``), which the simulators' worker processes could
+    not start under (:func:`~l1flow_rl.envs.workers.standard_start_method`)."""
+
+    def __init__(self, command: str, debug: bool = False) -> None:
+        self.command, self.debug = command, debug
+        self.plugins = _plugin_modules()
+        self.__name__ = self.__qualname__ = f"l1flow_rl_{command}"
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        for module in self.plugins:
+            importlib.import_module(module)
+
+    def __call__(self, cfg: DictConfig) -> int:
+        global _debug_flag
+        _debug_flag = _debug_flag or self.debug  # --debug reaches jobs in other processes too
+        standard_start_method()
+        module, func, _ = COMMANDS[self.command]
         out = Path(HydraConfig.get().runtime.output_dir)
         try:
             shown = str(out.relative_to(Path.cwd()))
@@ -225,17 +291,14 @@ def _job(command: str, func: Callable[[DictConfig], Any]) -> Callable[[DictConfi
             cfg.run_dir = shown
         OmegaConf.resolve(cfg)
         try:
-            return int(func(cfg) or 0)
+            return int(getattr(importlib.import_module(module), func)(cfg) or 0)
         except UserInputError as err:
             if _debug():
                 raise
-            return _user_error(command, err)
+            return _user_error(self.command, err)
         except RunPreempted as stop:  # the exact command that resumes this job, sweep or not
-            stop.resume_command = _resume_command(command, user_overrides(), stop.run_dir)
+            stop.resume_command = _resume_command(self.command, user_overrides(), stop.run_dir)
             raise
-
-    task.__name__ = task.__qualname__ = f"l1flow_rl_{command}"
-    return task
 
 
 def _groups_help(hydra: Any, overrides: Sequence[str]) -> list[str]:
@@ -380,18 +443,24 @@ def _secondary_rank_overrides(overrides: Sequence[str]) -> list[str]:
 
 def _run(command: str, hydra: Any, hargs: Any, overrides: list[str]) -> int:
     multirun = bool(hargs.multirun)
-    overrides = [
-        *overrides,
-        *_run_dir_overrides(command, overrides, multirun),
-        *_secondary_rank_overrides(overrides),
-    ]
     # Compose and validate every job (its paths included) before the first one starts, so that a
     # refused command line leaves no run directory and no lock behind.
     try:
+        configured = _configured_sweep(hydra, overrides) if multirun else set()
+        overrides = [
+            *overrides,
+            *_run_dir_overrides(command, overrides, multirun, configured),
+            *_secondary_rank_overrides(overrides),
+        ]
         check_moved_keys(overrides)  # policy.down_dims=... from before the network group: name the new key
-        for job in _sweep_jobs(overrides) if multirun else [overrides]:
+        for job in _sweep_jobs(hydra, overrides) if multirun else [overrides]:
             full = _compose(hydra, job)
-            validate_config(_app_config(full), command, paths=True)
+            # a grid's paths may name hydra's own fields (checkpoint: ${hydra:sweep.dir}/...)
+            HydraConfig.instance().set_config(full)
+            try:
+                validate_config(_app_config(full), command, paths=True)
+            finally:
+                HydraConfig.instance().cfg = None
     except _INVALID as err:
         return _invalid(command, err)
     if hargs.cfg or hargs.info:
@@ -406,8 +475,7 @@ def _run(command: str, hydra: Any, hargs: Any, overrides: list[str]) -> int:
                 resolve=hargs.resolve,
             )
         return 0
-    module, func, _ = COMMANDS[command]
-    task = _job(command, getattr(importlib.import_module(module), func))
+    task = _Job(command, _debug_flag)
     if not multirun:
         given = [o.split("=", 1)[1] for o in overrides if o.startswith("hydra.run.dir=")]
         with contextlib.ExitStack() as stack:

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from l1flow_rl.config.overrides import overrides_under
 from l1flow_rl.evaluation.evaluator import evaluate, sampler_record
@@ -16,6 +16,8 @@ from l1flow_rl.evaluation.rescore import eval_sampler
 from l1flow_rl.export.pretrained import CONFIG_FILE, load_pretrained_for_eval
 from l1flow_rl.utils.device import resolve_device
 from l1flow_rl.workspace.checkpoint import load_actor, load_checkpoint
+from l1flow_rl.workspace.harness import finished_run
+from l1flow_rl.workspace.provenance import run_provenance
 from l1flow_rl.workspace.report import format_summary
 from l1flow_rl.workspace.teacher import total_steps
 
@@ -52,7 +54,15 @@ def _samplerless(actor: Any, result: dict[str, Any]) -> dict[str, Any]:
 
 def run_eval(cfg: DictConfig) -> int:
     """``l1flow-rl eval checkpoint=PATH [policy.sampler=... policy.sampler_kwargs.k=v]
-    [eval.protocol=NAME] [eval.episodes=N] run_dir=DIR``: writes DIR/eval.json (test seeds)."""
+    [eval.protocol=NAME] [eval.episodes=N] run_dir=DIR``: writes DIR/eval.json (test seeds) and the
+    config beside it; ``resume=auto`` skips a DIR holding this very evaluation (an ``eval -m`` grid
+    relaunched)."""
+    done = finished_run(cfg, marker="eval.json")
+    if done is not None:
+        print(
+            f"l1flow-rl eval: {cfg.run_dir} holds this evaluation, finished ({done}); skipped (resume=auto)"
+        )
+        return 0
     if not cfg.checkpoint:
         print(
             "l1flow-rl eval: pass checkpoint=PATH (a .pt file, a run's checkpoints/ folder, or a pretrained "
@@ -108,6 +118,9 @@ def run_eval(cfg: DictConfig) -> int:
     }
     if ledger:
         record.update(ledger=ledger, total_steps_with_teacher=total_steps(ledger))
+    record["provenance"] = run_provenance()
+    run_dir.mkdir(parents=True, exist_ok=True)
+    OmegaConf.save(cfg, run_dir / "config.yaml")  # what resume=auto compares a relaunch with
     path = write_eval_json(run_dir / "eval.json", record)
     sampler = record["sampler"]
     print(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from l1flow_rl.config.data import DataConfig, DemosConfig
 from l1flow_rl.config.encoder import EncoderConfig
@@ -16,7 +17,13 @@ from l1flow_rl.config.task import TaskConfig
 from l1flow_rl.config.toy import ToyConfig
 from l1flow_rl.config.train import TrainConfig
 
-__all__ = ["AppConfig"]
+__all__ = ["RESUME_MODES", "AppConfig"]
+
+#: ``resume``: false (a fresh run; a run_dir holding one is refused), true (continue
+#: ``checkpoints/latest.pt``), auto (what a grid's jobs need: continue where a checkpoint exists,
+#: else start; a run_dir whose finished run has this very config is skipped, one of another
+#: setting refused)
+RESUME_MODES = (False, True, "auto")
 
 
 @dataclass
@@ -49,6 +56,6 @@ class AppConfig:
     out: str | None = path_field(None, kind=WRITABLE_DIR, commands=(), required=("export",))
     program: bool = False
     onnx: bool = False
-    resume: bool = False
+    resume: Any = False  # false | true | auto (RESUME_MODES)
     seed: int = bounded(0, ge=0, lt=2**32)
     device: str = "auto"  # auto | cpu | cuda

@@ -34,7 +34,7 @@ from typing import Any, get_args
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from l1flow_rl.config import finetune
-from l1flow_rl.config.app import AppConfig
+from l1flow_rl.config.app import RESUME_MODES, AppConfig
 from l1flow_rl.config.data import PADDING_RULES, quality_problems
 from l1flow_rl.config.network import network_problems
 from l1flow_rl.config.path_fields import path_problems
@@ -228,8 +228,19 @@ def _check_betas(cfg: DictConfig, command: str) -> list[str]:
     return [f"train.betas={list(betas)}: expected two numbers (Adam's beta1, beta2)"]
 
 
+def _check_resume(cfg: DictConfig, command: str) -> list[str]:
+    """``resume``: false, true or auto (typed loosely in the schema, which has no bool-or-word type)."""
+    if "resume" not in cfg:
+        return []
+    value = cfg.resume
+    if isinstance(value, bool) or (isinstance(value, str) and value in RESUME_MODES):
+        return []
+    return [f"resume={value!r}: expected false, true or auto"]
+
+
 #: The rules that read more than one field, each defined beside what it validates.
 BUILTIN_CHECKS: tuple[Check, ...] = (
+    _check_resume,
     _check_horizons,
     _check_betas,
     _check_val_sampler,

@@ -35,7 +35,9 @@ __all__ = [
     "ResumeMismatchError",
     "check_compatible",
     "check_resumable",
+    "config_differences",
     "first_non_finite",
+    "flatten_config",
     "get_buffer_rng",
     "get_rng_state",
     "load_actor",
@@ -218,12 +220,17 @@ def check_compatible(
         )
 
 
-def _flatten(node: Any, prefix: str = "") -> dict[str, Any]:
-    """Dotted leaf paths of a nested mapping; lists are leaves; an empty mapping is a leaf."""
+def flatten_config(node: Any, prefix: str = "") -> dict[str, Any]:
+    """Dotted leaf paths of a nested mapping; lists are leaves; an empty mapping is a leaf.
+
+    Example:
+        >>> flatten_config({"train": {"steps": 10, "betas": [0.9, 0.99]}, "eval": {}})
+        {'train.steps': 10, 'train.betas': [0.9, 0.99], 'eval': {}}
+    """
     if isinstance(node, Mapping) and node:
         out: dict[str, Any] = {}
         for key, value in node.items():
-            out.update(_flatten(value, f"{prefix}{key}."))
+            out.update(flatten_config(value, f"{prefix}{key}."))
         return out
     return {prefix[:-1]: node}
 
@@ -248,14 +255,8 @@ def check_resumable(
         ...     print(str(err).splitlines()[1])
           train.steps: checkpoint has 100, config asks for 200
     """
-    current = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
-    old, new = _flatten(saved_cfg), _flatten(current)
     allowed = (*RESUME_MAY_CHANGE, *may_change)
-    diffs = [
-        f"{key}: checkpoint has {old[key]!r}, config asks for {new.get(key)!r}"
-        for key in old
-        if old[key] != new.get(key) and not any(fnmatch.fnmatchcase(key, p) for p in allowed)
-    ]
+    diffs = config_differences(saved_cfg, cfg, allowed)
     if diffs:
         raise ResumeMismatchError(
             f"resume=true: checkpoint {path!r} was trained with another config:\n  "
@@ -264,6 +265,30 @@ def check_resumable(
             + ", ".join(allowed)
             + ". To change the others, start a new run (drop resume=true)."
         )
+
+
+def config_differences(
+    saved_cfg: Mapping[str, Any],
+    cfg: DictConfig | Mapping[str, Any],
+    may_differ: tuple[str, ...] = (),
+    saved_as: str = "checkpoint",
+) -> list[str]:
+    """One line per field of ``saved_cfg`` whose value ``cfg`` changes (``"key: <saved_as> has X,
+    config asks for Y"``), leaving out the fields matching a ``may_differ`` pattern (``fnmatch``) and
+    those ``saved_cfg`` does not record (it predates them). Every group is compared, ``network``
+    included.
+
+    Example:
+        >>> config_differences({"network": {"down_dims": [16, 32]}}, {"network": {"down_dims": [32]}})
+        ['network.down_dims: checkpoint has [16, 32], config asks for [32]']
+    """
+    current = OmegaConf.to_container(cfg, resolve=True) if isinstance(cfg, DictConfig) else cfg
+    old, new = flatten_config(saved_cfg), flatten_config(current)
+    return [
+        f"{key}: {saved_as} has {old[key]!r}, config asks for {new.get(key)!r}"
+        for key in old
+        if old[key] != new.get(key) and not any(fnmatch.fnmatchcase(key, p) for p in may_differ)
+    ]
 
 
 def load_actor(

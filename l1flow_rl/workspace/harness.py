@@ -8,7 +8,9 @@ state, its counters) and ``load(state)``. :class:`Run` does the rest:
   the config record (``config.yaml``); the logger (``train.logger``);
 - resume (``resume=true``): ``checkpoints/latest.pt`` continues if the config changes only fields
   of :data:`~l1flow_rl.workspace.checkpoint.RESUME_MAY_CHANGE` or of the job's ``may_change``,
-  and then ends where an uninterrupted run ends (bit-exact on CPU);
+  and then ends where an uninterrupted run ends (bit-exact on CPU); ``resume=auto`` (a grid's
+  jobs) continues where ``latest.pt`` exists and starts fresh where not, and a job skips a run
+  directory that already holds its finished run (:func:`finished_run`);
 - atomic checkpoints: the job's pieces plus every RNG, the clock, the history, the evaluations,
   the best validation figure and the logger's state; a state holding a NaN is never written;
 - a non-finite metric (loss, a ``loss_*`` term, ``grad_norm``) stops the run with
@@ -18,7 +20,9 @@ state, its counters) and ``load(state)``. :class:`Run` does the rest:
   :class:`~l1flow_rl.errors.RunPreempted`, which says how to resume;
 - validation -> ``best.pt`` -> the test evaluation of the chosen weights (``eval.json``); with
   ``eval.enabled=false`` none of them (no evaluator, ``latest.pt`` only);
-- ``summary.json`` (with the clocks over every invocation and the machine), ``history.json``, plots.
+- ``summary.json`` (with the clocks over every invocation and the machine), ``history.json``, plots;
+  both ``eval.json`` and ``summary.json`` carry a ``provenance`` block: the commits the run was
+  trained at, its launcher, the time (:mod:`~l1flow_rl.workspace.provenance`).
 
 Under torchrun every rank calls every method; rank 0 alone touches files, logs and evaluates
 (:func:`~l1flow_rl.workspace.distributed.run_on_rank0`), and all ranks stop at the same step.
@@ -71,6 +75,7 @@ from l1flow_rl.errors import RunDirectoryError, RunDivergedError, RunPreempted
 from l1flow_rl.evaluation.evaluator import sampler_record
 from l1flow_rl.workspace.checkpoint import (
     check_resumable,
+    config_differences,
     first_non_finite,
     get_rng_state,
     load_actor,
@@ -82,15 +87,71 @@ from l1flow_rl.workspace.distributed import run_on_every_rank, run_on_rank0
 from l1flow_rl.workspace.evaluator import TIE_RULES, PeriodicEvaluator
 from l1flow_rl.workspace.logging import make_logger
 from l1flow_rl.workspace.machine import machine_info
+from l1flow_rl.workspace.provenance import run_provenance, source_commit
 from l1flow_rl.workspace.report import format_summary, save_history, save_plots
 from l1flow_rl.workspace.run_clock import RunClock
 from l1flow_rl.workspace.run_lock import hold_run_dir
 
-__all__ = ["STOP_SIGNALS", "Run", "RunPreempted", "seed_everything"]
+__all__ = ["SAME_RUN_MAY_DIFFER", "STOP_SIGNALS", "Run", "RunPreempted", "finished_run", "seed_everything"]
 
 #: signals that stop a run with a checkpoint: SIGTERM (schedulers, ``kill``), SIGUSR1 (SLURM's
 #: ``--signal`` warning before the time limit)
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGUSR1)
+
+
+#: fields a finished run may differ in and still be the run asked for (``resume=auto`` skips it):
+#: where things live, where it ran, how it was logged; never what was trained or measured
+SAME_RUN_MAY_DIFFER: tuple[str, ...] = (
+    "run_dir",
+    "resume",
+    "data_dir",
+    "device",
+    "train.logger",
+    "train.project",
+    "train.group",
+    "train.run_name",
+    "train.log_every",
+    "train.prefetch",
+    "train.compile",
+)
+
+
+def finished_run(
+    cfg: DictConfig, may_differ: tuple[str, ...] = (), marker: str = "summary.json"
+) -> Path | None:
+    """With ``resume=auto``: the ``marker`` file (the last one the job writes) of the finished run in
+    ``cfg.run_dir`` when its ``config.yaml`` is this config, but for :data:`SAME_RUN_MAY_DIFFER` and
+    ``may_differ``; the job then skips it. None when the run directory holds no finished run, or
+    ``resume`` is not ``auto``.
+
+    A finished run of another setting (every group compared, ``network`` included) raises
+    :class:`~l1flow_rl.errors.RunDirectoryError` naming each field: a grid relaunched with another
+    budget must not read an old figure back as the new one.
+    """
+    if not (isinstance(cfg.get("resume"), str) and cfg.resume == "auto"):
+        return None
+    run_dir = Path(cfg.run_dir)
+    done, saved = run_dir / marker, run_dir / "config.yaml"
+    if not done.is_file():
+        return None
+    if not saved.is_file():
+        raise RunDirectoryError(
+            f"run_dir {str(run_dir)!r} holds a finished run ({done}) but no config.yaml saying what it ran; "
+            "move it away, or choose another run_dir"
+        )
+    saved_cfg = OmegaConf.to_container(OmegaConf.load(saved), resolve=False)
+    diffs = config_differences(
+        saved_cfg, cfg, (*SAME_RUN_MAY_DIFFER, *may_differ), saved_as="the finished run"
+    )
+    if diffs:
+        raise RunDirectoryError(
+            f"resume=auto: run_dir {str(run_dir)!r} holds a finished run of another setting:\n  "
+            + "\n  ".join(diffs)
+            + "\nMove it away or choose another run_dir (a grid: another hydra.sweep.dir); resume=true "
+            "continues it where only fields a resume may change differ (evaluation settings: the test "
+            "is run again)."
+        )
+    return done
 
 
 def seed_everything(seed: int) -> None:
@@ -146,6 +207,12 @@ class Run:
         self.run_dir = Path(cfg.run_dir)
         self.ckpt_dir = self.run_dir / "checkpoints"
         self.latest, self.best_path = self.ckpt_dir / "latest.pt", self.ckpt_dir / "best.pt"
+        # resume=auto: continue where a checkpoint exists, else start
+        self.resume = cfg.resume is True or (cfg.resume == "auto" and self.latest.is_file())
+        #: the source commits of every invocation, and the steps it was resumed from (provenance in
+        #: eval.json and summary.json)
+        self.commits: list[str] = []
+        self.resumed_at: list[int] = []
         self.config = OmegaConf.to_container(cfg, resolve=True)  # recorded in every checkpoint
         self.log_every, self.checkpoint_every, self.eval_every = log_every, checkpoint_every, eval_every
         self.phases = phases
@@ -210,7 +277,7 @@ class Run:
 
     def _preflight(self) -> None:
         self._stack.enter_context(hold_run_dir(self.run_dir))
-        if not self.cfg.resume and self.latest.is_file():
+        if not self.resume and self.latest.is_file():
             raise RunDirectoryError(
                 f"run_dir {str(self.run_dir)!r} already holds a run ({self.latest}); pass resume=true to "
                 "continue it, or choose another run_dir"
@@ -220,7 +287,7 @@ class Run:
             self._stack.callback(self.evaluator.close)
 
     def _read_resumed(self) -> dict[str, Any] | None:
-        if not self.cfg.resume:
+        if not self.resume:
             return None
         if not self.latest.is_file():
             raise RunDirectoryError(
@@ -254,8 +321,12 @@ class Run:
             self.history, self.evals = self.resumed["history"], self.resumed["evals"]
             self.best = float(self.resumed["best"])
             self.records = dict(self.resumed.get("records") or {})
+            self.commits = list(self.resumed.get("commits") or [])
+            self.resumed_at = [*(self.resumed.get("resumed_at") or []), step()]
             self.clock.resumed_at(step())
             self._saved_step = step()
+        if (commit := source_commit()) and commit not in self.commits[-1:]:
+            self.commits.append(commit)
         self._prev_step = self._first_step = step()
         run_on_rank0(self._open_record, "writing config.yaml and opening the logger")
         from tqdm import tqdm  # the app extra (jobs run from the CLI); the core modules import without it
@@ -311,6 +382,8 @@ class Run:
             history=self.history,
             evals=self.evals,
             records=self.records,
+            commits=self.commits,
+            resumed_at=self.resumed_at,
             best=self.best,
             elapsed=self.clock.totals(),
             logger=self.logger.state_dict() if hasattr(self.logger, "state_dict") else None,
@@ -484,6 +557,7 @@ class Run:
             self.evals.append({**ev.history_row(result), "weights_step": selection["step"], "ci95": ci95})
             result = {**result, "selection": selection, "sampler": sampler_record(chosen)}
             result.update(self.report_extra)
+            result["provenance"] = run_provenance(self.commits, self.resumed_at)
             (self.run_dir / "eval.json").write_text(json.dumps(result, indent=2))
             summary.update(
                 success_once=result["success_once"],
@@ -495,6 +569,7 @@ class Run:
         # Seconds over every invocation of the run; CPU is the budget when runs share the machine.
         summary.update(self.clock.summary())
         summary["machine"] = machine_info(self.device)  # threads and load as this invocation ended
+        summary["provenance"] = run_provenance(self.commits, self.resumed_at)
         (plot or (lambda run: save_plots(run.history, run.evals, run.run_dir)))(self)
         save_history(self.history, self.evals, self.run_dir, **self.records)
         (self.run_dir / "summary.json").write_text(json.dumps(summary, indent=2))

@@ -20,7 +20,7 @@ from l1flow_rl.workspace.build import build_actor, build_loss
 from l1flow_rl.workspace.checkpoint import get_buffer_rng, set_buffer_rng
 from l1flow_rl.workspace.dataset import load_task_episodes, make_train_buffer, resolve_dataset
 from l1flow_rl.workspace.distributed import init_distributed, resolve_device, run_on_every_rank, run_on_rank0
-from l1flow_rl.workspace.harness import Run
+from l1flow_rl.workspace.harness import Run, finished_run
 from l1flow_rl.workspace.teacher import load_teacher, own_stage, total_steps
 from l1flow_rl.workspace.trainer import Trainer
 
@@ -54,7 +54,12 @@ def _device(cfg: DictConfig, world: int) -> torch.device:
 
 
 def run_train(cfg: DictConfig) -> int:
-    """Train ``cfg.policy`` on ``cfg.task``'s demonstrations; rank 0 evaluates and reports."""
+    """Train ``cfg.policy`` on ``cfg.task``'s demonstrations; rank 0 evaluates and reports.
+    ``resume=auto`` skips a run directory that holds this very run, finished (a grid relaunched)."""
+    done = finished_run(cfg, may_differ=("checkpoint",))  # train reads no checkpoint=
+    if done is not None:
+        print(f"l1flow-rl train: {cfg.run_dir} holds this run, finished ({done.name}); skipped (resume=auto)")
+        return 0
     rank, world = init_distributed()
     device, tcfg, pcfg = _device(cfg, world), cfg.train, cfg.policy
     harness = Run(

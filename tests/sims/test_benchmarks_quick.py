@@ -244,102 +244,6 @@ def test_success_overview_puts_every_compared_task_in_one_table_and_figure(tmp_p
     assert overview_figure(tmp_path, tmp_path / "o.png") and (tmp_path / "o.png").stat().st_size > 0
 
 
-@pytest.mark.slow
-@pytest.mark.maniskill
-def test_success_sweep_quick_mode_trains_rescores_and_saves(tmp_path):
-    from benchmarks.success import bench_success
-
-    # two runs side by side (--jobs 2), after the shared demonstrations are made once
-    argv = [
-        "--quick",
-        "--policies",
-        "ddpm",
-        "regression",
-        "--seeds",
-        "0",
-        "--jobs",
-        "2",
-        "--ddpm-validation",
-        "ddim16",
-        "--root",
-        str(tmp_path),
-        "--plot",
-        str(tmp_path / "success_pushcube_quick.png"),
-    ]
-    assert bench_success.main(argv) == 0
-    figures = json.loads((tmp_path / "success_pushcube_quick.json").read_text())
-    block = figures["tasks"]["maniskill_pushcube"]
-    assert set(block) == {"ddpm", "ddpm_ddim16", "regression"}
-    assert block["regression"]["metric"] == "success_once"  # the default protocol's headline
-    budget = block["regression"]["per_seed"][0]
-    assert budget["steps"] == 4 and budget["cpu_seconds"] > 0 and budget["wall_seconds"] > 0
-    assert budget["seconds_since_step"] == 0  # the seconds cover the whole run
-    assert budget["cpu_seconds_scope"] == "process tree"  # simulator workers included
-    # each run records the machine as it ran: the sweep's share of the cores as its torch threads
-    from benchmarks.lib.sweep import _threads
-
-    assert budget["machine"]["torch_threads"] == _threads(2) and budget["machine"]["device"] == "cpu"
-    assert block["ddpm"]["per_seed"][0]["nfe_per_chunk"] == 100.0  # tested under its own sampler
-    assert block["ddpm"]["validation_sampler"] == "ddim16"
-    assert block["regression"]["validation_sampler"] is None
-    history = json.loads((tmp_path / "maniskill_pushcube" / "ddpm" / "seed0" / "history.json").read_text())
-    assert {e["nfe_per_chunk"] for e in history["evals"] if e["split"] == "val"} == {16.0}
-    assert block["ddpm_ddim16"]["per_seed"][0]["nfe_per_chunk"] == 16.0  # the same network, re-scored
-    # ... the very model of the run's own test figures (chosen on validation): best.pt
-    rescored = json.loads(
-        (tmp_path / "maniskill_pushcube" / "ddpm" / "seed0" / "rescore_ddim16" / "eval.json").read_text()
-    )
-    assert rescored["checkpoint"].endswith("best.pt")
-    assert [step for step, _ in block["ddpm"]["curves"][0]] == [2, 4]  # validation curve, one point a step
-    assert (tmp_path / "success_pushcube_quick.png").stat().st_size > 5_000
-    # a second call reads the finished runs back instead of training again
-    assert bench_success.main(argv) == 0
-    # --collect-only writes the same grid from those runs, and refuses a grid with a run missing
-    collected = json.loads((tmp_path / "success_pushcube_quick.json").read_text())["tasks"]
-    assert bench_success.main([*argv, "--collect-only"]) == 0
-    again = json.loads((tmp_path / "success_pushcube_quick.json").read_text())["tasks"]
-    assert (
-        again["maniskill_pushcube"]["ddpm"]["per_seed"] == collected["maniskill_pushcube"]["ddpm"]["per_seed"]
-    )
-    assert bench_success.main([*argv[:5], "1", *argv[5:], "--collect-only"]) == 2  # seed 1 never ran
-
-
-def test_success_collect_only_lists_what_is_missing_and_trains_nothing(tmp_path, capsys):
-    from benchmarks.success import bench_success
-
-    argv = [
-        "--quick",
-        "--policies",
-        "ddpm",
-        "l1flow",
-        "--seeds",
-        "0",
-        "--root",
-        str(tmp_path),
-        "--collect-only",
-    ]
-    assert bench_success.main(argv) == 2
-    err = capsys.readouterr().err
-    assert "maniskill_pushcube/ddpm/seed0 (training)" in err
-    assert "maniskill_pushcube/ddpm/seed0 (re-scoring ddim16)" in err
-    assert "maniskill_pushcube/l1flow/seed0 (training)" in err
-    assert not list(tmp_path.iterdir())  # no demonstrations, no run folder
-
-
-@pytest.mark.slow
-@pytest.mark.maniskill
-def test_ablations_quick_mode_covers_every_variant(tmp_path):
-    from benchmarks.success import bench_ablations
-
-    # the five loss variants two at a time, after the demonstrations are made once
-    assert bench_ablations.main(["--quick", "--seeds", "0", "--jobs", "2", "--root", str(tmp_path)]) == 0
-    figures = json.loads((tmp_path / "ablations_maniskill_pushcube_2demos_4steps_quick.json").read_text())
-    variants = figures["variants"]
-    assert set(variants) == set(bench_ablations.LOSS_VARIANTS) | set(bench_ablations.SAMPLER_VARIANTS)
-    nfe = {name: v["per_seed"][0]["nfe_per_chunk"] for name, v in variants.items()}
-    assert nfe["euler5"] == 5.0 and nfe["t_first_0.3"] == 2.0 and nfe["default"] == 2.0
-
-
 @pytest.mark.slow  # ~25 s: a benchmark script, run on purpose
 def test_train_throughput_quick_mode_times_every_arm_and_cuda_latency_refuses_without_cuda(tmp_path, capsys):
     import torch
@@ -366,36 +270,6 @@ def test_train_throughput_quick_mode_times_every_arm_and_cuda_latency_refuses_wi
         assert exit_info.value.code == 2
         assert "needs a CUDA GPU" in capsys.readouterr().err
         assert not (tmp_path / "latency_cuda.json").exists()
-
-
-def test_a_finished_run_of_another_setting_is_refused_not_read_back(tmp_path):
-    from omegaconf import OmegaConf
-
-    from benchmarks.lib.sweep import Run, train
-
-    run_dir = tmp_path / "maniskill_stackcube" / "l1flow" / "seed0"
-    run_dir.mkdir(parents=True)
-    saved = {
-        "task": {"name": "maniskill_stackcube"},
-        "policy": {"name": "l1flow"},
-        "network": {"name": "unet", "down_dims": [16, 32]},
-    }
-    OmegaConf.save(
-        OmegaConf.create({**saved, "seed": 0, "demos": {"num": 100}, "train": {"steps": 12000}}),
-        run_dir / "config.yaml",
-    )
-    (run_dir / "eval.json").write_text(json.dumps({"success_once": 0.62}))
-    same = [
-        "task=maniskill_stackcube",
-        "policy=l1flow",
-        "seed=0",
-        "demos.num=100",
-        "network.down_dims=[16,32]",
-    ]
-    assert train(Run("same", same, run_dir), tmp_path / "data")["success_once"] == 0.62  # read back
-    other = [*same[:3], "demos.num=300", "train.steps=2500"]
-    with pytest.raises(RuntimeError, match=r"demos\.num: the folder's run has 100, this sweep asks for 300"):
-        train(Run("other", other, run_dir), tmp_path / "data")
 
 
 def test_sampler_quick_mode_measures_sampling_against_the_training_step(tmp_path):

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from l1flow_rl.data.formats.dp_zarr_writer import write_dp_zarr
+from l1flow_rl.envs.workers import standard_start_method
 from l1flow_rl.experts.pusht.episode import Demo, run_episode
 from l1flow_rl.experts.registry import DemoGenerationError
 
@@ -59,6 +60,7 @@ def _spawn_pool(workers: int) -> multiprocessing.pool.Pool:
     it ignored: seen, the Ctrl-C test hung for good in a full test run). A Python handler is not
     inherited across exec, so a no-op one keeps SIGTERM ignored here while the workers start with
     the default."""
+    standard_start_method()  # inside a loky worker (hydra's joblib launcher) spawn would fail
     context = multiprocessing.get_context("spawn")
     if threading.current_thread() is not threading.main_thread():
         return context.Pool(workers)  # signal handlers belong to the main thread

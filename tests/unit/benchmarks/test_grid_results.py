@@ -1,0 +1,151 @@
+"""The results scripts read a grid's folder (hydra's sweep directory of ``l1flow-rl train -m
++grid=...``, re-scorings in ``<run>/rescore_<name>/``): one success file per task with every
+method, seed and re-scoring, the grid's setting and its runs' provenance; the ablations file with
+every loss variant and sampler swap; an unfinished grid is refused, naming what is missing."""
+
+import json
+from pathlib import Path
+
+import yaml
+from omegaconf import OmegaConf
+
+from benchmarks.lib.runs import grid_runs
+from benchmarks.success import bench_ablations, bench_success
+from l1flow_rl.commands.cli import compose_config
+
+
+def _result(success: float, nfe: float = 2.0, sampler: dict | None = None) -> dict:
+    record = {
+        "commits": ["a" * 40],
+        "launcher": "joblib",
+        "resumed_at": [],
+        "measured_at": "2026-12-05T00:00:00",
+    }
+    result = {"success_once": success, "episodes": 100, "ci95": {"success_once": [0.1, 0.9]}}
+    result.update(nfe_per_chunk=nfe, split="test", provenance=record, sampler=sampler or {})
+    return result
+
+
+def _job(folder: Path, command: str, num: int, overrides: list[str]) -> None:
+    (folder / ".hydra").mkdir(parents=True)
+    (folder / ".hydra" / "hydra.yaml").write_text(
+        yaml.safe_dump({"hydra": {"job": {"name": command, "num": num}}})
+    )
+    (folder / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+
+
+def _run(grid: Path, name: str, num: int, overrides: list[str], success: float | None) -> Path:
+    """A training job's folder as the harness leaves it (finished when ``success`` is given)."""
+    folder = grid / name
+    _job(folder, "train", num, overrides)
+    OmegaConf.save(compose_config(overrides), folder / "config.yaml")
+    if success is not None:
+        (folder / "eval.json").write_text(json.dumps(_result(success)))
+        evals = [
+            {"step": 5, "split": "val", "success_once": success / 2},
+            {"step": 10, "split": "val", "success_once": success},
+        ]
+        (folder / "history.json").write_text(json.dumps({"evals": evals}))
+        (folder / "summary.json").write_text(json.dumps({"steps": 10, "cpu_seconds": 5.0}))
+    return folder
+
+
+def _rescore(run: Path, name: str, success: float, sampler: dict | None = None) -> None:
+    _job(run / f"rescore_{name}", "eval", 0, [])
+    (run / f"rescore_{name}" / "eval.json").write_text(json.dumps(_result(success, 16.0, sampler)))
+
+
+def test_a_success_grid_becomes_one_file_per_task_with_its_setting_and_provenance(tmp_path, capsys):
+    grid = tmp_path / "grid"
+    num = 0
+    for task in ("maniskill_pushcube", "maniskill_pickcube"):
+        for policy in ("l1flow", "ddpm"):
+            for seed in (0, 1):
+                overrides = [
+                    f"task={task}",
+                    f"policy={policy}",
+                    f"seed={seed}",
+                    "train.steps=3000",
+                    "eval.protocol=maniskill",
+                    "+grid=g",
+                ]
+                last = (task, policy, seed) == ("maniskill_pickcube", "ddpm", 1)
+                run = _run(
+                    grid,
+                    f"{task}/{policy}/seed{seed}",
+                    num,
+                    overrides[:-1],
+                    None if last else 0.5 + seed / 10,
+                )
+                (run / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+                if policy == "ddpm" and not last:
+                    _rescore(run, "ddim16", 0.4)
+                num += 1
+    out = tmp_path / "out"
+    # an unfinished run refuses the grid, naming it; --partial writes what is finished
+    assert bench_success.main([str(grid), "--out-dir", str(out)]) == 2
+    assert "maniskill_pickcube/ddpm/seed1 (training)" in capsys.readouterr().err and not out.exists()
+    assert bench_success.main([str(grid), "--out-dir", str(out), "--partial"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["success_pickcube.json", "success_pushcube.json"]
+
+    saved = json.loads((out / "success_pushcube.json").read_text())
+    block = saved["tasks"]["maniskill_pushcube"]
+    assert set(block) == {"l1flow", "ddpm", "ddpm_ddim16"}
+    assert block["l1flow"]["success_once"]["mean"] == 0.55 and block["l1flow"]["success_once"]["n"] == 2
+    assert (
+        block["ddpm_ddim16"]["per_seed"][0]["nfe_per_chunk"] == 16.0 and block["ddpm_ddim16"]["curves"] == []
+    )
+    assert block["l1flow"]["curves"][1] == [[5, 0.3], [10, 0.6]]
+    args = saved["args"]
+    assert (args["demos"], args["steps"], args["seeds"], args["eval_episodes"]) == (100, 3000, [0, 1], 100)
+    assert args["extra"] == ["eval.protocol=maniskill"]  # what the grid changes from the defaults
+    runs = saved["provenance"]["runs"]
+    assert runs["commits"] == ["a" * 40] and runs["launchers"] == ["joblib"] and runs["without_commit"] == 0
+    assert (
+        runs["command"]
+        == "l1flow-rl train -m task=maniskill_pushcube train.steps=3000 eval.protocol=maniskill +grid=g"
+    )
+    assert runs["swept"]["policy.name"] == ["ddpm", "l1flow"] and runs["swept"]["seed"] == [0, 1]
+    assert runs["config"]["eval"]["protocol"] == "maniskill"
+    assert saved["provenance"]["command"].startswith("python -m benchmarks.success.bench_success")
+    # the report reads it as every success file: the table, its setting, the runs' commit
+    from benchmarks.report.success import render_success
+    from benchmarks.report.tables import source_line
+
+    assert "| `success_pushcube.json` | maniskill_pushcube | ddpm_ddim16 |" in render_success(
+        [("success_pushcube.json", saved)]
+    )
+    line = source_line(out / "success_pushcube.json", saved, tmp_path / "RESULTS.md")
+    command = "l1flow-rl train -m task=maniskill_pushcube train.steps=3000 eval.protocol=maniskill +grid=g"
+    assert f"runs: `{command}` at commit `aaaaaaaaaaaa` (launcher joblib)" in line
+
+
+def test_an_ablation_grid_becomes_its_loss_variants_and_sampler_swaps(tmp_path):
+    grid = tmp_path / "grid"
+    common = ["task=maniskill_pushcube", "demos.num=20", "train.steps=50"]
+    num = 0
+    for variant, options in (("default", []), ("mse", ["policy.loss_kwargs.loss_type=mse"])):
+        for seed in (0, 1):
+            run = _run(
+                grid, f"{variant}/seed{seed}", num, [*common, f"seed={seed}", *options], 0.5 + seed / 10
+            )
+            overrides = [f"+grid/ablation={variant}", f"seed={seed}", "+grid=ablations"]
+            (run / ".hydra" / "overrides.yaml").write_text(yaml.safe_dump(overrides))
+            if variant == "default":
+                _rescore(run, "euler10", 0.2, {"name": "euler", "kwargs": {"steps": 10}})
+                _rescore(run, "euler2", 0.3, {"name": "euler", "kwargs": {"steps": 2}})
+            num += 1
+    assert [r.name for r in grid_runs(grid)] == ["default/seed0", "default/seed1", "mse/seed0", "mse/seed1"]
+    assert bench_ablations.main([str(grid), "--out-dir", str(tmp_path)]) == 0
+    saved = json.loads((tmp_path / "ablations_maniskill_pushcube_20demos_50steps.json").read_text())
+    variants = saved["variants"]
+    assert list(variants) == ["default", "mse", "euler2", "euler10"]
+    assert variants["mse"]["kind"] == "loss" and variants["mse"]["options"] == [
+        "policy.loss_kwargs.loss_type=mse"
+    ]
+    assert variants["euler2"]["options"] == ["policy.sampler=euler", "policy.sampler_kwargs.steps=2"]
+    assert (
+        variants["default"]["success_once"]["n"] == 2 and variants["euler10"]["success_once"]["mean"] == 0.2
+    )
+    assert saved["args"]["task"] == "maniskill_pushcube" and saved["args"]["seeds"] == [0, 1]
+    assert (tmp_path / "ablations_maniskill_pushcube_20demos_50steps.png").is_file()
