@@ -372,6 +372,11 @@ def test_main_job_quick_mode_runs_the_cli_and_checks_its_targets(tmp_path):
     assert json.loads(again.read_text())["runs"][1]["success_once"] == figures["runs"][1]["success_once"]
     argv = ["--quick", "--reuse", "--seeds", "5", "--out", str(again), *work]
     assert bench_main_job.main(argv) == 2
+    # CI's guard: exit 1 when a run's test is below it, 0 at or under its figure
+    worst = min(r["success_once"] for r in figures["runs"])
+    guarded = ["--quick", "--reuse", "--seeds", "0", "1", "--out", str(again), *work]
+    assert bench_main_job.main([*guarded, "--guard", str(worst + 0.01)]) == 1
+    assert bench_main_job.main([*guarded, "--guard", str(worst)]) == 0
     with pytest.raises(SystemExit):  # the seeds are the script's: a seed= override is refused
         bench_main_job.main(["--quick", "--out", str(again), "seed=3"])
 
