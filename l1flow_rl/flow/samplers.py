@@ -330,9 +330,10 @@ class ConsistencySampler(_KarrasLevels):
     """Consistency Policy's sampler: one jump of the consistency function from ``sigma_max * noise`` to
     the clean chunk, then ``steps - 1`` times: renoise to an intermediate level and jump again (one NFE
     each). The intermediate levels are bins ``ceil(k * bins / steps)`` of the ``bins``-level rho
-    schedule, k = 1 .. steps - 1: CP's bins 27 and 54 of 80 for 3 steps. Deterministic: no renoising
-    (zero noise throughout). ``trajectory``: the network was trained with CP's trajectory objective, so
-    each jump to sigma_min is CTM's, ``(sigma_min / sigma) x + (1 - sigma_min / sigma) f(x, sigma)``."""
+    schedule, k = 1 .. steps - 1: CP's bins 27 and 54 of 80 for 3 steps (its README's reading; its code's
+    ``['D', 27, 54]`` passes them on as raw sigma). Deterministic: no renoising (zero noise throughout).
+    ``trajectory``: the network was trained with CP's trajectory objective, so each jump to sigma_min is
+    CTM's, ``(sigma_min / sigma) x + (1 - sigma_min / sigma) f(x, sigma)``."""
 
     prediction = "consistency"
     boundary = True
@@ -435,14 +436,13 @@ class _OneStep(ChunkSampler):
 class OneStepEDMSampler(_OneStep):
     """A generator distilled from an EDM teacher: D(sigma_init * z, sigma_init) under EDM's
     preconditioning, so that with the teacher's weights it starts as the teacher's one-step denoiser.
-    ``sigma_init`` 1.7 is the EDM level of OneDP's DDPM start, step 65 of Diffusion Policy's 100-step
-    cosine schedule (sqrt((1 - a) / a) = 1.71 there), so both teachers' generators start equally deep."""
+    ``sigma_init`` 2.5 is OneDP's continuous-diffusion level (its Table 7)."""
 
     teacher_prediction = "karras"
 
     def __init__(
         self,
-        sigma_init: float = 1.7,
+        sigma_init: float = 2.5,
         sigma_data: float = 0.5,
         stochastic: bool = True,
         clip_sample: bool = True,
