@@ -131,7 +131,7 @@ GROUPS: dict[str, list[Section]] = {
     ],
     "Speed: inference and training": [
         Section(
-            r"latency(_image|_samplers_cuda|_samplers_cuda_image)?\.json",
+            r"latency(_mlp|_image|_samplers_cuda|_samplers_cuda_image)?\.json",
             "Per-chunk latency, every sampler",
             render_latency,
             True,

@@ -56,6 +56,18 @@ def _dims(network: dict) -> str:
     return "/".join(map(str, network.get("down_dims", [])))
 
 
+def _denoiser(network: dict) -> str:
+    """``UNet 64/128/256`` or ``MLP 512/512/512/512``."""
+    if network.get("name") == "mlp":
+        return "MLP " + "/".join(map(str, network.get("hidden_dims", [])))
+    return f"UNet {_dims(network)}"
+
+
+def _latency_label(network: dict) -> str:
+    """A latency file's column name: its task (image), else ``mlp`` or ``state`` (the UNet)."""
+    return network.get("task") or ("mlp" if network.get("name") == "mlp" else "state")
+
+
 def render_latency(files: list[tuple[str, dict]]) -> str:
     """Every latency file in one table: a column per (network, device, batch), a row per sampler,
     each cell the per-chunk wall ms and its multiple of L1 Flow's in the same run."""
@@ -63,7 +75,7 @@ def render_latency(files: list[tuple[str, dict]]) -> str:
     for _, d in files:
         net, device = d.get("network") or {}, d["machine"].get("device", "cpu")
         for batch, block in d["inference"].items():
-            columns.append((f"{net.get('task', 'state')}, {device}, {batch}", d, block))
+            columns.append((f"{_latency_label(net)}, {device}, {batch}", d, block))
             for method in block["ms"]:
                 methods.setdefault(method, d["nfe"].get(method))
     header = ["method", "NFE"] + [title for title, _, _ in columns]
@@ -78,13 +90,14 @@ def render_latency(files: list[tuple[str, dict]]) -> str:
         for method, nfe in methods.items()
     ]
     rows.append(["L1 Flow over its floor", "–"] + [f"{b['l1flow_over_floor']}×" for _, _, b in columns])
-    nets = {(d.get("network") or {}).get("task", "state"): d.get("network") or {} for _, d in files}
+    nets = {_latency_label(d.get("network") or {}): d.get("network") or {} for _, d in files}
     out = [
         "Per-chunk wall ms (its multiple of L1 Flow's in the same run); CPU ms are in the files. Networks: "
         + "; ".join(
-            f"{task} ({num(n.get('parameters'))} parameters, UNet {_dims(n)})" for task, n in nets.items()
+            f"{task} ({num(n.get('parameters'))} parameters, {_denoiser(n)})" for task, n in nets.items()
         )
-        + ". The floor: the encoder and 2 UNet forwards.",
+        + ". The floor: the encoder and 2 network forwards. cp1/cp3: Consistency Policy at 1 and 3 steps; "
+        "onedp1: OneDP's one-step generator; edm_heun18/10: EDM's Heun sampler over 18/10 levels.",
         "",
         table(header, rows),
     ]

@@ -2,11 +2,12 @@
 floor, plus the training-step time of each loss, all in one run (the paper's speed claim).
 
 ``--network state`` (default): the network ``l1flow-rl train`` builds by default (``PolicyConfig``
-and ``NetworkConfig``: ConditionalUnet1D, down_dims 64/128/256, To=2, H=16, K=8) for a
-ManiSkill-PushCube-sized state (D=35, A=4). ``--network image``: the one ``l1flow-rl train
-task=maniskill_pushcube_rgb`` builds (the same UNet behind the ResNet-18 GroupNorm encoder, 128x128
-RGB cropped to 0.9, plus a 25-D state), saved as ``latency_image.json``. Weights do not change the
-time, so one network serves every sampler.
+and ``NetworkConfig``, configs/network/unet.yaml: ConditionalUnet1D, down_dims 64/128/256, To=2,
+H=16, K=8) for a ManiSkill-PushCube-sized state (D=35, A=4). ``--network mlp``: the same state policy
+on ``network=mlp`` (configs/network/mlp.yaml, 4 x 512), saved as ``latency_mlp.json``. ``--network
+image``: the one ``l1flow-rl train task=maniskill_pushcube_rgb`` builds (the same UNet behind the
+ResNet-18 GroupNorm encoder, 128x128 RGB cropped to 0.9, plus a 25-D state), saved as
+``latency_image.json``. Weights do not change the time, so one network serves every sampler.
 
 Inference, one action chunk through ``L1FlowActor`` (observation in, executable window out), at
 batch 1 and 64:
@@ -14,18 +15,21 @@ batch 1 and 64:
 * L1 Flow 2-NFE; sample-prediction Euler with 1/2/5/10 steps; v-prediction Euler 10;
   DDIM-16 and DDPM-100 (this project's samplers); plain regression (its UNet drops the timestep
   input, so it is the one network of its own);
+* the distillation comparison's samplers: EDM Heun over 18 and 10 levels (35 and 19 NFE),
+  Consistency Policy at 1 and 3 steps, OneDP's one-step generator;
 * the peer's own path: the same network driven by diffusers' ``DDPMScheduler`` (100 steps) and
   ``DDIMScheduler`` (16 steps) in Diffusion Policy's loop (``scheduler.step(...).prev_sample``);
 * the floor: the encoder and 2 UNet forwards timed alone (no normalisation, no sampler code).
 
 Reported: median wall and process-CPU milliseconds, L1 Flow's overhead over the floor (goal
 <= 1.05x), and speed-ups of L1 Flow over each method as ratios from this run. Training: one AdamW
-step of each loss at batch 256. Methods take turns within each round, so drifting load hits them
-alike. ``--threads`` defaults to 1: on a busy 2-core machine torch's intra-op threads spin-wait.
-The image network's training step is ``bench_image_train``'s subject, so ``--network image`` times
-inference only.
+step of each loss at batch 256, the distillation losses (Consistency Policy's trajectory objective,
+OneDP-D, OneDP-S) with a frozen EDM teacher of the same network. Methods take turns within each
+round, so drifting load hits them alike. ``--threads`` defaults to 1: on a busy 2-core machine
+torch's intra-op threads spin-wait. The image network's training step is ``bench_image_train``'s
+subject, so ``--network image`` times inference only.
 
-    python -m benchmarks.speed.bench_latency [--quick] [--network state|image] [--out PATH]
+    python -m benchmarks.speed.bench_latency [--quick] [--network state|mlp|image] [--out PATH]
 """
 
 from __future__ import annotations
@@ -39,7 +43,17 @@ import torch
 from tensordict import TensorDict
 
 from benchmarks.lib.common import format_table, interleaved, machine_info, parse_args, save_results
-from l1flow_rl import DiffusionLoss, FlowMatchingLoss, L1FlowActor, L1FlowLoss, RegressionLoss
+from l1flow_rl import (
+    ConsistencyLoss,
+    DiffusionLoss,
+    EDMLoss,
+    FlowMatchingLoss,
+    L1FlowActor,
+    L1FlowLoss,
+    OneDPDLoss,
+    OneDPSLoss,
+    RegressionLoss,
+)
 from l1flow_rl.config import NetworkConfig, PolicyConfig
 from l1flow_rl.workspace.build import build_actor as build_policy_actor
 
@@ -56,6 +70,11 @@ SAMPLERS: dict[str, tuple[str, dict]] = {
     "ddim16": ("ddim", {"steps": 16}),
     "ddpm100": ("ddpm", {}),
     "regression": ("direct", {}),
+    "edm_heun18": ("edm_heun", {"steps": 18}),
+    "edm_heun10": ("edm_heun", {"steps": 10}),
+    "cp1": ("edm_consistency", {"steps": 1, "trajectory": True}),
+    "cp3": ("edm_consistency", {"steps": 3, "trajectory": True}),
+    "onedp1": ("onedp_edm", {"stochastic": True}),
 }
 #: method -> the loss that trains a network for it (DDIM trains like DDPM, Euler like L1 Flow)
 TRAINED = {
@@ -63,6 +82,13 @@ TRAINED = {
     "vflow_euler10": FlowMatchingLoss,
     "ddpm100": DiffusionLoss,
     "regression": RegressionLoss,
+    "edm_heun18": EDMLoss,
+}
+#: loss -> (its student's sampler, the loss's options): distilled from an EDM teacher (edm_heun18)
+DISTILLED: dict[str, tuple[tuple[str, dict], Callable[..., object], dict]] = {
+    "consistency": (SAMPLERS["cp1"], ConsistencyLoss, {"trajectory": True}),
+    "onedp_d": (("onedp_edm", {"stochastic": False}), OneDPDLoss, {}),
+    "onedp_s": (SAMPLERS["onedp1"], OneDPSLoss, {}),
 }
 
 
@@ -85,6 +111,17 @@ def _image_setup(quick: bool = False) -> tuple[dict, dict, dict, dict]:
     return policy, encoder, network, {"state": (STATE_DIM,), "rgb": (3, SIDE, SIDE)}
 
 
+def _state_network(network: str) -> dict:
+    """The state denoiser's settings: the train job's default (``state``: the UNet) or ``mlp``'s group."""
+    if network == "mlp":
+        from omegaconf import OmegaConf
+
+        from l1flow_rl.commands.cli import compose_config
+
+        return OmegaConf.to_container(compose_config(["network=mlp"], command="eval").network, resolve=True)
+    return dataclasses.asdict(NetworkConfig())
+
+
 def build_actor(
     method: str,
     device: torch.device,
@@ -92,16 +129,18 @@ def build_actor(
     network: str = "state",
     quick: bool = False,
     network_cfg: NetworkConfig | None = None,
+    sampler: tuple[str, dict] | None = None,
 ) -> L1FlowActor:
-    """The network as the train job builds it (state, or the image task's), with ``method``'s sampler.
-    ``policy`` and ``network_cfg`` (the state network's; default: the train job's defaults)."""
-    sampler, options = SAMPLERS[method]
+    """The network as the train job builds it (state, ``mlp``, or the image task's), with ``method``'s
+    sampler (or ``sampler``). ``policy`` and ``network_cfg`` (the state network's; default: the train
+    job's defaults)."""
+    name, options = sampler or SAMPLERS[method]
     if network == "image":
         cfg, encoder, net, shapes = _image_setup(quick)
-        cfg = {**cfg, "sampler": sampler, "sampler_kwargs": options}
+        cfg = {**cfg, "sampler": name, "sampler_kwargs": options}
         return build_policy_actor(cfg, shapes, ACTION_DIM, encoder, net).to(device).eval()
-    cfg = dataclasses.replace(policy or PolicyConfig(), sampler=sampler, sampler_kwargs=options)
-    net = dataclasses.asdict(network_cfg or NetworkConfig())
+    cfg = dataclasses.replace(policy or PolicyConfig(), sampler=name, sampler_kwargs=options)
+    net = dataclasses.asdict(network_cfg) if network_cfg is not None else _state_network(network)
     return (
         build_policy_actor(dataclasses.asdict(cfg), {"state": (OBS_DIM,)}, ACTION_DIM, None, net)
         .to(device)
@@ -196,7 +235,7 @@ def inference_calls(
     return calls
 
 
-def training_steps(device: torch.device, batch: int) -> dict[str, Callable[[], None]]:
+def training_steps(device: torch.device, batch: int, network: str = "state") -> dict[str, Callable[[], None]]:
     p = PolicyConfig()
     data = TensorDict(
         {
@@ -206,10 +245,17 @@ def training_steps(device: torch.device, batch: int) -> dict[str, Callable[[], N
         [batch],
         device=device,
     )
+    losses = {m: loss_cls(build_actor(m, device, network=network).train()) for m, loss_cls in TRAINED.items()}
+    teacher = build_actor("edm_heun18", device, network=network)
+    for name, (sampler, loss_cls, options) in DISTILLED.items():
+        student = build_actor(name, device, network=network, sampler=sampler).train()
+        losses[name] = loss_cls(student, teacher=teacher, **options)
     steps = {}
-    for method, loss_cls in TRAINED.items():
-        loss_fn = loss_cls(build_actor(method, device).train())
-        optim = torch.optim.AdamW(loss_fn.parameters(), lr=1e-4, betas=(0.95, 0.999), weight_decay=1e-6)
+    for method, loss_fn in losses.items():
+        params = [*loss_fn.actor_network.parameters(), *loss_fn.extra_parameters()]
+        optim = torch.optim.AdamW(
+            [q for q in params if q.requires_grad], lr=1e-4, betas=(0.95, 0.999), weight_decay=1e-6
+        )
 
         def step(loss_fn=loss_fn, optim=optim) -> None:
             loss = loss_fn(data)[loss_fn.loss_name]
@@ -235,13 +281,13 @@ def run(args: argparse.Namespace) -> dict:
     torch.manual_seed(0)
     figures: dict = {"machine": machine_info(device), "quick": args.quick}
     actor = build_actor("l1flow_2nfe", device, network=args.network, quick=args.quick)
+    net = _image_setup(args.quick)[2] if args.network == "image" else _state_network(args.network)
     figures["network"] = {
         "kind": args.network,
-        "obs_dim": OBS_DIM if args.network == "state" else None,
+        "obs_dim": OBS_DIM if args.network != "image" else None,
         "action_dim": ACTION_DIM,
-        "down_dims": list(_image_setup(args.quick)[2]["down_dims"])
-        if args.network == "image"
-        else list(NetworkConfig().down_dims),
+        "name": net["name"],
+        **{k: list(net[k]) for k in ("down_dims", "hidden_dims") if net.get(k)},
         "parameters": sum(p.numel() for p in actor.parameters()),
     }
     if args.network == "image":
@@ -263,8 +309,8 @@ def run(args: argparse.Namespace) -> dict:
             "l1flow_over_floor": round(ref["wall_ms"] / times["floor_2_unet"]["wall_ms"], 3),
             "l1flow_chunks_per_s": round(1e3 / ref["wall_ms"], 1),
         }
-    if not args.no_train and args.network == "state":
-        train = interleaved(training_steps(device, args.train_batch), args.train_rounds, device)
+    if not args.no_train and args.network != "image":
+        train = interleaved(training_steps(device, args.train_batch, args.network), args.train_rounds, device)
         figures["train_step_ms"] = {
             "batch": args.train_batch,
             "ms": {k: {m: round(v, 1) for m, v in r.items()} for k, r in train.items()},
@@ -275,8 +321,8 @@ def run(args: argparse.Namespace) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default=None, help="default: benchmarks/results/latency[_image].json")
-    parser.add_argument("--network", choices=("state", "image"), default="state")
+    parser.add_argument("--out", default=None, help="default: benchmarks/results/latency[_mlp|_image].json")
+    parser.add_argument("--network", choices=("state", "mlp", "image"), default="state")
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (0: torch's default)")
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 64])
@@ -290,7 +336,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.batches, args.rounds, args.train_batch, args.train_rounds = [1], 1, 8, 1
     if args.out is None:
-        args.out = f"benchmarks/results/latency{'_image' if args.network == 'image' else ''}.json"
+        args.out = f"benchmarks/results/latency{'' if args.network == 'state' else '_' + args.network}.json"
     figures = run(args)
     save_results(args.out, figures)
     for name, block in figures["inference"].items():

@@ -11,7 +11,10 @@ needs neither this library nor TensorDict to run::
 The noise is an input so that a chunk is reproducible (zeros give the deterministic chunk). Inputs are
 the observation entries in the order of config.json's ``program.inputs`` (one tensor for a state
 policy: [B, To, D] float32; images are uint8 [B, To, 3, H, W]), then the noise [B, H, A]; the batch
-size is dynamic.
+size is dynamic. A sampler that re-noises inside a chunk (ancestral DDPM; Consistency Policy chained
+over 3 steps) takes its later draws as one more input, ``inner_noise`` [B, draws, H, A]
+(``sampler.inner_noise_draws``), so its program too reproduces the eager chunk
+``actor.policy(obs, noise=..., inner_noise=...)``; a program has no random operation inside.
 
 ONNX: :func:`export_onnx` uses the dynamo exporter (``torch.onnx.export(..., dynamo=True)``, which
 needs ``onnxscript``) on the same module.
@@ -54,25 +57,43 @@ ONNX_FILE = "policy.onnx"
 
 
 class DeployablePolicy(nn.Module):
-    """``forward(*entries, noise) -> actions [B, K, A]``: one actor's whole 2-NFE call on plain tensors.
+    """``forward(*entries, noise[, inner_noise]) -> actions [B, K, A]``: one actor's whole call (2 NFE for
+    L1 Flow) on plain tensors.
 
-    ``entries`` are the observation entries [B, To, ...] in :attr:`entry_names` order. The module shares
-    the actor's weights; put the actor in eval mode first (image crops are centre crops then).
+    ``entries`` are the observation entries [B, To, ...] in :attr:`entry_names` order; ``inner_noise``
+    [B, draws, H, A] only for a sampler that re-noises inside a chunk (:attr:`inner_draws` > 0). The
+    module shares the actor's weights; put the actor in eval mode first (image crops are centre crops then).
     """
 
     def __init__(self, actor: TensorDictModule) -> None:
         super().__init__()
         self.policy = actor.policy
         self.entry_names = list(self.policy.encoder.obs_shapes)
+        self.inner_draws = self.policy.sampler.inner_noise_draws
 
     def forward(self, *inputs: Tensor) -> Tensor:
-        *entries, noise = inputs
         p = self.policy
+        if self.inner_draws:
+            *entries, noise, inner = inputs
+            extra = {"inner_noise": inner}
+        else:
+            *entries, noise = inputs
+            extra = {}
         n = noise.shape[0]
         obs = TensorDict(dict(zip(self.entry_names, entries)), batch_size=[n, p.obs_horizon])
         cond = p.encode(obs)
-        chunk = p.sampler(lambda x, t: p.denoise(x, t, cond), noise.to(cond.dtype))
+        chunk = p.sampler(lambda x, t: p.denoise(x, t, cond), noise.to(cond.dtype), **extra)
         return p.executable(p.action_normalizer.unnormalize(chunk))
+
+
+def _noise_shapes(actor: TensorDictModule) -> dict[str, tuple[int, ...]]:
+    """The noise inputs after the observation entries, without the batch: ``noise`` [H, A], and
+    ``inner_noise`` [draws, H, A] for a sampler that re-noises inside a chunk."""
+    p = actor.policy
+    shapes = {"noise": (p.pred_horizon, p.action_dim)}
+    if p.sampler.inner_noise_draws:
+        shapes["inner_noise"] = (p.sampler.inner_noise_draws, p.pred_horizon, p.action_dim)
+    return shapes
 
 
 def example_inputs(actor: TensorDictModule, batch: int = 1) -> tuple[Tensor, ...]:
@@ -85,13 +106,15 @@ def example_inputs(actor: TensorDictModule, batch: int = 1) -> tuple[Tensor, ...
         )
         for shape in p.encoder.obs_shapes.values()
     ]
-    return (*entries, torch.zeros(batch, p.pred_horizon, p.action_dim, dtype=p.dtype, device=device))
+    noises = [torch.zeros(batch, *s, dtype=p.dtype, device=device) for s in _noise_shapes(actor).values()]
+    return (*entries, *noises)
 
 
 def _dynamic_batch(actor: TensorDictModule) -> tuple[tuple[dict[int, Any], ...]]:
     """Dim 0 of every input is the batch (one spec per input, inside the ``*inputs`` tuple)."""
     batch = torch.export.Dim("batch", min=1, max=4096)
-    return (tuple({0: batch} for _ in range(len(actor.policy.encoder.obs_shapes) + 1)),)
+    count = len(actor.policy.encoder.obs_shapes) + len(_noise_shapes(actor))
+    return (tuple({0: batch} for _ in range(count)),)
 
 
 def export_program(
@@ -111,7 +134,8 @@ def export_program(
 
 
 def load_program(path: str | os.PathLike) -> nn.Module:
-    """The callable saved by :func:`export_program`: ``program(*entries, noise) -> actions``."""
+    """The callable saved by :func:`export_program`: ``program(*entries, noise[, inner_noise])`` ->
+    actions."""
     return torch.export.load(str(path)).module()
 
 
@@ -126,13 +150,10 @@ def program_description(actor: TensorDictModule) -> dict[str, Any]:
         }
         for k, s in p.encoder.obs_shapes.items()
     ]
-    inputs.append(
-        {
-            "name": "noise",
-            "shape": ["batch", p.pred_horizon, p.action_dim],
-            "dtype": str(p.dtype).removeprefix("torch."),
-        }
-    )
+    inputs += [
+        {"name": name, "shape": ["batch", *shape], "dtype": str(p.dtype).removeprefix("torch.")}
+        for name, shape in _noise_shapes(actor).items()
+    ]
     return {
         "file": PROGRAM_FILE,
         "inputs": inputs,
@@ -152,7 +173,7 @@ def export_onnx(actor: TensorDictModule, path: str | os.PathLike) -> Path:
             f"ONNX export needs {err.name}, which is not installed: pip install 'l1flow-rl[export]'"
         ) from err
     module = DeployablePolicy(actor).eval()
-    names = [*module.entry_names, "noise"]
+    names = [*module.entry_names, *_noise_shapes(actor)]
     with torch.no_grad():
         onnx_program = torch.onnx.export(
             module,

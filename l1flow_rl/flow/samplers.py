@@ -73,6 +73,13 @@ class ChunkSampler(abc.ABC):
         type, plus (diffusion) the training schedule's length, which its timestep input indexes."""
         return {"prediction": self.prediction}
 
+    @property
+    def inner_noise_draws(self) -> int:
+        """Chunk-shaped noise draws the sampler makes after its start (ancestral DDPM, a chained
+        Consistency Policy); 0: a chunk is a function of its start noise alone. A sampler that draws
+        takes them as ``inner_noise`` [B, draws, H, A] when given, so that a chunk is reproducible."""
+        return 0
+
     def settings(self) -> dict[str, Any]:
         """The constructor arguments that reproduce this sampler (``make_sampler(name, **settings)``)."""
         return {k: v for k, v in vars(self).items() if not k.startswith("_")}
@@ -95,6 +102,18 @@ class ChunkSampler(abc.ABC):
 
 def _full(x: Tensor, value: float) -> Tensor:
     return torch.full((x.shape[0],), float(value), device=x.device, dtype=x.dtype)
+
+
+def _inner_draw(
+    k: int, like: Tensor, deterministic: bool, generator: torch.Generator | None, inner_noise: Tensor | None
+) -> Tensor:
+    """The sampler's ``k``-th noise draw after its start: given (``inner_noise[:, k]``), zeros when
+    deterministic, else fresh."""
+    if inner_noise is not None:
+        return inner_noise[:, k].to(like.dtype)
+    if deterministic:
+        return torch.zeros_like(like)
+    return torch.randn(like.shape, device=like.device, dtype=like.dtype, generator=generator)
 
 
 class TwoStepSampler(ChunkSampler):
@@ -199,20 +218,23 @@ class DDPMSampler(_EpsilonSampler):
     def nfe(self) -> int:
         return self.num_train_timesteps
 
-    def __call__(self, denoise, x_init, *, deterministic=False, generator=None):
+    @property
+    def inner_noise_draws(self) -> int:
+        return self.num_train_timesteps - 1  # one per step but the last
+
+    def __call__(self, denoise, x_init, *, deterministic=False, generator=None, inner_noise=None):
         ac = self.schedule.alphas_cumprod.to(x_init.device)
         x = x_init
-        for step in reversed(range(self.num_train_timesteps)):
+        for k, step in enumerate(reversed(range(self.num_train_timesteps))):
             a_t = ac[step]
             a_prev = ac[step - 1] if step > 0 else torch.ones((), device=x.device)
             alpha_t = a_t / a_prev
             eps = denoise(x, _full(x, step))
             x0 = self._predict_x0(x, eps, a_t)
             mean = (a_prev.sqrt() * (1 - alpha_t) * x0 + alpha_t.sqrt() * (1 - a_prev) * x) / (1 - a_t)
-            if step > 0 and not deterministic:
+            if step > 0 and (inner_noise is not None or not deterministic):
                 var = ((1 - a_prev) / (1 - a_t) * (1 - alpha_t)).clamp_min(1e-20)
-                noise = torch.randn(x.shape, device=x.device, dtype=x.dtype, generator=generator)
-                mean = mean + var.sqrt() * noise
+                mean = mean + var.sqrt() * _inner_draw(k, x, deterministic, generator, inner_noise)
             x = mean
         return x
 
@@ -330,9 +352,10 @@ class ConsistencySampler(_KarrasLevels):
     """Consistency Policy's sampler: one jump of the consistency function from ``sigma_max * noise`` to
     the clean chunk, then ``steps - 1`` times: renoise to an intermediate level and jump again (one NFE
     each). The intermediate levels are bins ``ceil(k * bins / steps)`` of the ``bins``-level rho
-    schedule, k = 1 .. steps - 1: CP's bins 27 and 54 of 80 for 3 steps. Deterministic: no renoising
-    (zero noise throughout). ``trajectory``: the network was trained with CP's trajectory objective, so
-    each jump to sigma_min is CTM's, ``(sigma_min / sigma) x + (1 - sigma_min / sigma) f(x, sigma)``."""
+    schedule, k = 1 .. steps - 1: CP's bins 27 and 54 of 80 for 3 steps (its README's reading; its code's
+    ``['D', 27, 54]`` passes them on as raw sigma). Deterministic: no renoising (zero noise throughout).
+    ``trajectory``: the network was trained with CP's trajectory objective, so each jump to sigma_min is
+    CTM's, ``(sigma_min / sigma) x + (1 - sigma_min / sigma) f(x, sigma)``."""
 
     prediction = "consistency"
     boundary = True
@@ -382,15 +405,16 @@ class ConsistencySampler(_KarrasLevels):
         """The bins the chain renoises to after the first jump."""
         return [math.ceil(k * self.bins / self.steps) for k in range(1, self.steps)]
 
-    def __call__(self, denoise, x_init, *, deterministic=False, generator=None):
+    @property
+    def inner_noise_draws(self) -> int:
+        return self.steps - 1  # one renoising per chained jump
+
+    def __call__(self, denoise, x_init, *, deterministic=False, generator=None, inner_noise=None):
         clean = self._denoiser(denoise)
         levels = self.bin_sigmas(device=x_init.device).to(x_init.dtype)
         out = clean(x_init * self.sigma_max, levels[0])
-        for b in self.chain_bins():
-            if deterministic:
-                noise = torch.zeros_like(out)
-            else:
-                noise = torch.randn(out.shape, device=out.device, dtype=out.dtype, generator=generator)
+        for k, b in enumerate(self.chain_bins()):
+            noise = _inner_draw(k, out, deterministic, generator, inner_noise)
             out = clean(out + levels[b] * noise, levels[b])
         return out
 
@@ -435,14 +459,13 @@ class _OneStep(ChunkSampler):
 class OneStepEDMSampler(_OneStep):
     """A generator distilled from an EDM teacher: D(sigma_init * z, sigma_init) under EDM's
     preconditioning, so that with the teacher's weights it starts as the teacher's one-step denoiser.
-    ``sigma_init`` 1.7 is the EDM level of OneDP's DDPM start, step 65 of Diffusion Policy's 100-step
-    cosine schedule (sqrt((1 - a) / a) = 1.71 there), so both teachers' generators start equally deep."""
+    ``sigma_init`` 2.5 is OneDP's continuous-diffusion level (its Table 7)."""
 
     teacher_prediction = "karras"
 
     def __init__(
         self,
-        sigma_init: float = 1.7,
+        sigma_init: float = 2.5,
         sigma_data: float = 0.5,
         stochastic: bool = True,
         clip_sample: bool = True,

@@ -151,9 +151,12 @@ class ChunkPolicy(nn.Module):
         deterministic: bool = False,
         generator: torch.Generator | None = None,
         noise: Tensor | None = None,
+        inner_noise: Tensor | None = None,
     ) -> Tensor:
         """Full predicted chunk [*B, H, A] in environment units. ``noise`` [*B, H, A], when given, is the
-        starting point instead of a fresh draw (reproducible chunks; what an exported program takes)."""
+        starting point instead of a fresh draw (reproducible chunks; what an exported program takes).
+        ``inner_noise`` [*B, draws, H, A]: the draws a re-noising sampler makes after its start
+        (``sampler.inner_noise_draws``: DDPM's, a chained Consistency Policy's), given instead of drawn."""
         batch = self.batch_dims(observation)
         obs = self.as_obs_dict(observation)
         cond = self.encode(obs)  # once per chunk, shared by every network call
@@ -170,8 +173,22 @@ class ChunkPolicy(nn.Module):
             x_init = torch.zeros(shape, device=cond.device, dtype=cond.dtype)
         else:
             x_init = torch.randn(shape, device=cond.device, dtype=cond.dtype, generator=generator)
+        extra = {}
+        if inner_noise is not None:
+            draws = self.sampler.inner_noise_draws
+            want = (*batch, draws, self.pred_horizon, self.action_dim)
+            if not draws or tuple(inner_noise.shape) != want:
+                raise ValueError(
+                    f"inner_noise must have shape [*B, draws, pred_horizon, action_dim] = {list(want)} "
+                    f"({self.sampler!r} draws {draws} times after its start), got {list(inner_noise.shape)}"
+                )
+            extra["inner_noise"] = inner_noise.reshape(n, *want[-3:]).to(device=cond.device, dtype=cond.dtype)
         x1 = self.sampler(
-            lambda x, t: self.denoise(x, t, cond), x_init, deterministic=deterministic, generator=generator
+            lambda x, t: self.denoise(x, t, cond),
+            x_init,
+            deterministic=deterministic,
+            generator=generator,
+            **extra,
         )
         return self.action_normalizer.unnormalize(x1).reshape(*batch, self.pred_horizon, self.action_dim)
 
@@ -185,13 +202,18 @@ class ChunkPolicy(nn.Module):
         observation: Tensor | TensorDictBase,
         deterministic: bool | None = None,
         noise: Tensor | None = None,
+        inner_noise: Tensor | None = None,
     ) -> Tensor:
         """Executable window [*B, K, A]. ``deterministic=None`` follows TensorDict's interaction type:
         DETERMINISTIC (and MODE) start from zero noise, anything else samples; ``noise`` [*B, H, A]
-        given starts from it."""
+        given starts from it, and ``inner_noise`` (a re-noising sampler's later draws, see
+        :meth:`sample_chunk`) replaces its own draws."""
         if deterministic is None:
             deterministic = interaction_type() in (InteractionType.DETERMINISTIC, InteractionType.MODE)
-        return self.executable(self.sample_chunk(observation, deterministic=deterministic, noise=noise))
+        chunk = self.sample_chunk(
+            observation, deterministic=deterministic, noise=noise, inner_noise=inner_noise
+        )
+        return self.executable(chunk)
 
     def batch_dims(self, observation: Tensor | TensorDictBase) -> tuple[int, ...]:
         """The leading batch dims [*B] of an observation [*B, To, ...]."""

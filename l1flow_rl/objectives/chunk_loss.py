@@ -190,8 +190,12 @@ class ChunkLossBase(LossModule):
         return self._elementwise_loss(cond, x1, valid)
 
     # -- what a loss trains and keeps beyond the actor (distillation: a score network, a target) --
+    #: the learning rate of :meth:`extra_parameters` as a multiple of the actor's
+    extra_lr_scale: float = 1.0
+
     def extra_parameters(self) -> list[torch.nn.Parameter]:
-        """Parameters the optimiser trains beside the actor's (none for behaviour cloning)."""
+        """Parameters the optimiser trains beside the actor's (none for behaviour cloning), at
+        ``extra_lr_scale`` times the actor's learning rate."""
         return []
 
     def training_state(self) -> dict[str, Tensor]:

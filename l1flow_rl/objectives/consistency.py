@@ -1,4 +1,16 @@
-"""Consistency Policy (Prasad et al. 2024): consistency distillation of an EDM teacher."""
+"""Consistency Policy (Prasad et al. 2024): consistency distillation of an EDM teacher.
+
+Departures from CP's released code (Aaditya-Prasad/consistency-policy), on purpose:
+
+- the stop level enters as an offset of the observation condition that is zero at sigma_min; CP
+  concatenates the stop's time embedding to the UNet's FiLM condition (zero-initialised weights);
+- the distance is iCT's pseudo-Huber ``sqrt(d^2 + delta^2) - delta``; CP's ``Huber_Loss`` squares the
+  squared error first (``sqrt(d^4 + delta^2) - delta``);
+- the denoising term's log-normal half is clipped to [sigma_min, sigma_max] like its schedule half;
+- the student has no dropout (CP: 0.2 on the FiLM scale and bias of the student only);
+- sampling starts from ``sigma_max * noise``, the level the student trains at; CP starts from unit
+  noise (its "reducing initial variance").
+"""
 
 from __future__ import annotations
 
@@ -52,7 +64,8 @@ class ConsistencyLoss(DistillationLossBase):
 
     The target network is an exponential moving average of the student, updated at the start of each
     call with ``target_decay`` (CP's released recipe: 0, the student itself without gradient). The
-    student starts from the teacher's weights.
+    student starts from the teacher's weights; with ``freeze_encoder`` (CP's warm start) its observation
+    encoder stays at the teacher's and only the denoiser trains.
 
     Args:
         actor_network: the student, an :class:`~l1flow_rl.L1FlowActor` with a
@@ -78,6 +91,7 @@ class ConsistencyLoss(DistillationLossBase):
         dsm_weight: float = 1.0,
         trajectory: bool = False,
         huber_delta: float | None = None,
+        freeze_encoder: bool = True,
         init_from_teacher: bool = True,
         reduction: str = "mean",
         mask_padding: bool = False,
@@ -97,6 +111,9 @@ class ConsistencyLoss(DistillationLossBase):
         )
         self.target_decay, self.dsm_weight = float(target_decay), float(dsm_weight)
         policy = self.policy
+        self.freeze_encoder = bool(freeze_encoder)
+        if self.freeze_encoder:
+            policy.encoder.requires_grad_(False)
         self.huber_delta = huber_delta or ict_delta(policy.pred_horizon * policy.action_dim)
         self.sampler = policy.sampler
         self._check_student_sampler(trajectory=trajectory)

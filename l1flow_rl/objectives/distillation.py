@@ -34,6 +34,16 @@ class TeacherView(abc.ABC):
     def sample_levels(self, n: int, device: torch.device) -> Tensor:
         """Training noise levels [n] (sigma for EDM, the integer step for DDPM)."""
 
+    def distillation_levels(self, n: int, device: torch.device) -> Tensor:
+        """The levels [n] a score-distillation loss noises the generator's chunks to (OneDP's draws)."""
+        return self.sample_levels(n, device)
+
+    @abc.abstractmethod
+    def kl_weight(self, level: Tensor, like: Tensor) -> Tensor:
+        """The factor that turns the clean-chunk difference ``fake - real`` at ``level`` into OneDP's
+        generator gradient ``w(k) (s_fake - s_real) dx_k/dA`` with ``w(k) = sigma_k^2`` (DreamFusion's
+        weight, OneDP section 2.3), shaped to broadcast against ``like`` [N, H, A]."""
+
     @abc.abstractmethod
     def add_noise(self, x0: Tensor, noise: Tensor, level: Tensor) -> Tensor: ...
 
@@ -59,6 +69,10 @@ class _KarrasView(TeacherView):
     def add_noise(self, x0, noise, level):
         return x0 + level.to(x0.dtype).reshape(-1, 1, 1) * noise
 
+    def kl_weight(self, level, like):
+        # score (D - x) / sigma^2 and x = A + sigma n: sigma^2 (s_fake - s_real) = fake - real
+        return like.new_ones(())
+
     def clean(self, policy, cond, x, level):
         return self.precond.denoise(lambda xin, c: policy.denoise(xin, c, cond), x, level.to(x.dtype))
 
@@ -69,7 +83,8 @@ class _KarrasView(TeacherView):
 
 
 class _EpsilonView(TeacherView):
-    """A DDPM epsilon network (Diffusion Policy's schedule): integer steps, x0 from the predicted noise."""
+    """A DDPM epsilon network (Diffusion Policy's schedule): integer steps, x0 from the predicted noise.
+    Distillation draws steps in [2, T - 5] (OneDP's [2, 95] of 100, away from both ends of the chain)."""
 
     def __init__(self, sampler: ChunkSampler) -> None:
         self.schedule = sampler.schedule  # type: ignore[attr-defined]
@@ -77,8 +92,19 @@ class _EpsilonView(TeacherView):
     def sample_levels(self, n, device):
         return torch.randint(0, self.schedule.num_train_timesteps, (n,), device=device)
 
+    def distillation_levels(self, n, device):
+        steps = self.schedule.num_train_timesteps
+        first = min(_DISTILL_FIRST_STEP, steps - 1)
+        last = max(first, steps - _DISTILL_END_MARGIN)
+        return torch.randint(first, last + 1, (n,), device=device)
+
     def add_noise(self, x0, noise, level):
         return self.schedule.add_noise(x0, noise, level)
+
+    def kl_weight(self, level, like):
+        # score -eps / sigma_k, x_k = alpha_k A + sigma_k n: sigma_k^2 (s_fake - s_real) alpha_k, read in
+        # clean-chunk units (eps = (x - alpha x0) / sigma), is alpha_bar_k (fake - real)
+        return self.schedule.alpha_bar(level).to(like.dtype).reshape(-1, 1, 1)
 
     def clean(self, policy, cond, x, level):
         a = self.schedule.alpha_bar(level).to(x.dtype).reshape(-1, 1, 1)
@@ -91,6 +117,9 @@ class _EpsilonView(TeacherView):
         eps = policy.denoise(self.add_noise(x0, noise, steps), steps.to(x0.dtype), cond)
         return (eps - noise).square()
 
+
+#: OneDP's distillation steps of a DDPM teacher: [2, 95] of 100, i.e. [2, T - 5]
+_DISTILL_FIRST_STEP, _DISTILL_END_MARGIN = 2, 5
 
 #: prediction type of a diffusion network -> how to read it
 _VIEWS = {"karras": _KarrasView, "epsilon": _EpsilonView}

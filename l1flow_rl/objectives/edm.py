@@ -1,5 +1,9 @@
 """Baseline: Diffusion Policy on EDM's noise schedule (Karras et al. 2022): preconditioned denoiser,
-log-normal noise levels, EDM's loss weight."""
+log-normal noise levels, EDM's loss weight, squared error (NVlabs/edm, as OneDP's EDM teacher).
+
+Departure from Consistency Policy's released EDM teacher, on purpose: CP shifts c_skip/c_out by its
+sigma_min 0.02 (the boundary form) and trains with a pseudo-Huber distance; this is Karras' form.
+"""
 
 from __future__ import annotations
 

@@ -15,27 +15,24 @@ from l1flow_rl.utils.doc_examples import distillation_example
 
 __all__ = ["OneDPDLoss"]
 
-#: floor of DMD's per-sample normaliser |generated - teacher's estimate| (normalised action units)
-_MIN_NORMALISER = 1e-6
-
 
 @distillation_example("DDPMSampler()", "OneStepDDPMSampler(stochastic=False)", 1, scale=1.0)
 class OneDPDLoss(DistillationLossBase):
     """The generator G (the actor, one NFE) is pushed to where the teacher's diffusion chain puts mass.
 
-    Each batch: the generator's chunk ``A = G(z, obs)`` is noised to a teacher training level
-    (EDM: log-normal sigma; DDPM: a uniform step), ``x_k = fwd(A, n, k)``. The gradient of
-    KL(p_G(x_k) || p_teacher(x_k)) with respect to A is the difference of the two distributions'
-    scores at x_k, which is, in action units, ``fake(x_k) - teacher(x_k)``: the two clean-chunk
-    estimates. For this deterministic generator (z = 0, OneDP-D) the distribution of x_k is a Gaussian
-    around A, so its estimate is A itself and no score network is needed (OneDP-S,
-    :class:`~l1flow_rl.objectives.onedp_s.OneDPSLoss`, learns it). The difference is divided per sample by
-    ``mean |A - teacher(x_k)|`` (DMD's normaliser, which makes the step size the same across levels and
-    teacher parameterisations), and applied as the gradient of ``0.5 |A - sg(A - g)|^2``, whose value is
-    ``0.5 g^2``.
+    Each batch: the generator's chunk ``A = G(z, obs)`` is noised to a teacher level (EDM: EDM's
+    log-normal sigma; DDPM: a uniform step in [2, 95] of 100), ``x_k = fwd(A, n, k)``. The gradient of
+    KL(p_G(x_k) || p_teacher(x_k)) with respect to A is ``w(k) (s_G(x_k) - s_teacher(x_k)) dx_k/dA``
+    with OneDP's ``w(k) = sigma_k^2``; in the networks' clean-chunk estimates this is ``fake(x_k) -
+    teacher(x_k)`` for EDM and ``alpha_bar_k (fake - teacher)`` for DDPM
+    (:meth:`~l1flow_rl.objectives.distillation.TeacherView.kl_weight`). For this deterministic generator
+    (z = 0, OneDP-D) the distribution of x_k is a Gaussian around A, so its estimate is A itself and no
+    score network is needed (OneDP-S, :class:`~l1flow_rl.objectives.onedp_s.OneDPSLoss`, learns it). The
+    gradient g is applied as that of ``0.5 |A - sg(A - g)|^2``, whose value is ``0.5 g^2``.
 
     The student's sampler (``onedp_edm`` or ``onedp_ddpm``) must read the network the way the teacher is
-    parameterised; the generator starts from the teacher's weights.
+    parameterised; the generator starts from the teacher's weights. OneDP trains it with Adam at lr 1e-6,
+    betas (0, 0.999): ``policy=onedp_d`` sets ``train.lr`` and ``train.betas`` so.
 
     Returns ``"loss_onedp"`` and the detached diagnostic ``"generator_term"``.
     """
@@ -89,12 +86,11 @@ class OneDPDLoss(DistillationLossBase):
         generated = sampler.generate(lambda x, t: self.policy.denoise(x, t, cond), z)  # type: ignore[attr-defined]
         with torch.no_grad():
             sample = generated.detach()
-            level = view.sample_levels(x1.shape[0], x1.device)
+            level = view.distillation_levels(x1.shape[0], x1.device)
             noisy = view.add_noise(sample, torch.randn_like(sample), level)
             real = view.clean(self.teacher, teacher_cond, noisy, level)
             fake = self._fake_clean(obs, sample, noisy, level)
-            normaliser = (sample - real).abs().mean(dim=(1, 2), keepdim=True).clamp_min(_MIN_NORMALISER)
-            step = (fake - real) / normaliser
+            step = view.kl_weight(level, sample) * (fake - real)
         generator_term = 0.5 * (generated - (generated - step).detach()).square()
         extra, diagnostics = self._extra_terms(obs, sample)
         err = generator_term if extra is None else generator_term + extra

@@ -93,15 +93,19 @@ class Trainer:
             # 2.11 / H100 a dynamic GroupNorm-backward kernel failed with "misaligned address".
             actor.policy.net.compile(dynamic=False)
         params = [p for p in actor.parameters() if p.requires_grad]
-        # A loss may train networks of its own beside the actor (OneDP-S's score network).
-        extra = getattr(loss_fn, "extra_parameters", list)()
-        params += [p for p in extra if p.requires_grad]
-        self._params = params
+        # A loss may train networks of its own beside the actor (OneDP-S's score network), at its own
+        # multiple of the learning rate (a second parameter group only when that multiple is not 1).
+        extra = [p for p in getattr(loss_fn, "extra_parameters", list)() if p.requires_grad]
+        scale = float(getattr(loss_fn, "extra_lr_scale", 1.0))
+        self._params = params + extra
+        groups: list[Any] = params + extra
+        if extra and scale != 1.0:
+            groups = [{"params": params}, {"params": extra, "lr": lr * scale}]
         # The fused kernel (one launch for all parameters) where it is the fast path; elsewhere
         # torch's default, so CPU runs stay bit-for-bit what they were.
-        fused = True if params and params[0].device.type == "cuda" else None
+        fused = True if self._params and self._params[0].device.type == "cuda" else None
         self.optimizer = torch.optim.AdamW(
-            params, lr=lr, betas=tuple(betas), weight_decay=weight_decay, fused=fused
+            groups, lr=lr, betas=tuple(betas), weight_decay=weight_decay, fused=fused
         )
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(
             self.optimizer, warmup_cosine(warmup_steps, total_steps)

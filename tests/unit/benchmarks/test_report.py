@@ -46,6 +46,8 @@ def test_report_writes_results_and_the_readme_summary_from_saved_results_only(tm
     figures = json.loads((results / "latency.json").read_text())
     (results / "latency.json").write_text(json.dumps({**figures, "quick": False}))
     (results / "latency_image.json").write_text(json.dumps(figures))  # a --quick run: never reported
+    mlp = {"kind": "mlp", "name": "mlp", "hidden_dims": [512] * 4, "parameters": 926784}
+    (results / "latency_mlp.json").write_text(json.dumps({**figures, "quick": False, "network": mlp}))
 
     assert report.main([*argv, "--check"]) == 1
     out = capsys.readouterr().out
@@ -64,6 +66,9 @@ def test_report_writes_results_and_the_readme_summary_from_saved_results_only(tm
     text = doc.read_text()
     assert f"| l1flow_2nfe | 2 | {ms:.3g} (1×) |" in text  # the number comes from the file
     assert "### Per-chunk latency, every sampler" in text
+    # the distillation comparison's samplers are rows, and the MLP's file is a column of its own
+    assert "| cp3 | 3 | " in text and "| edm_heun18 | 35 | " in text and "| onedp1 | 1 | " in text
+    assert "| state, cpu, batch1 | mlp, cpu, batch1 |" in text and "MLP 512/512/512/512" in text
     # the section names its file (linked from RESULTS.md's folder), when and where it was measured,
     # and the command and commit that rerun it, which the script recorded
     record = figures["provenance"]

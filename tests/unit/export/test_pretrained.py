@@ -183,3 +183,37 @@ def test_onnx_export_matches_eager_within_float_tolerance(tmp_path):
     # onnxruntime fuses and reorders float ops: not bitwise, measured max |diff| 1e-5 on values ~4
     assert torch.allclose(torch.from_numpy(out), eager, atol=1e-4, rtol=1e-4)
     assert DeployablePolicy(actor).entry_names == ["state"] and len(example_inputs(actor)) == 2
+
+
+@pytest.mark.parametrize("sampler", ["consistency_3", "ddpm_8"])
+def test_a_renoising_sampler_exports_with_its_inner_noise_as_an_input_and_reproduces_eager(sampler):
+    # CP chained over 3 steps renoises twice, ancestral DDPM at every step but the last: with those draws
+    # drawn inside, a program could not reproduce a chunk from its start noise. They are an input instead.
+    from l1flow_rl.export.program import program_description
+    from l1flow_rl.flow import ConsistencySampler, DDPMSampler
+
+    chosen, scale = {
+        "consistency_3": (ConsistencySampler(3), 1000.0),
+        "ddpm_8": (DDPMSampler(num_train_timesteps=8), 1.0),
+    }[sampler]
+    actor = L1FlowActor.for_state(
+        obs_dim=5, action_dim=2, down_dims=(16, 32), sampler=chosen, timestep_scale=scale
+    ).eval()
+    actor.policy.fit_normalizers(torch.randn(100, 5) * 3, torch.randn(100, 2) * 4)
+    draws = chosen.inner_noise_draws
+    assert draws == {"consistency_3": 2, "ddpm_8": 7}[sampler]
+    inputs = program_description(actor)["inputs"]
+    assert [i["name"] for i in inputs] == ["state", "noise", "inner_noise"]
+    assert inputs[-1]["shape"] == ["batch", draws, 16, 2]
+    exported = export_program(actor)
+    ops = {str(n.target) for n in exported.graph.nodes if n.op == "call_function"}
+    assert "aten.conv1d.default" in ops and not [o for o in ops if "rand" in o or "normal" in o]
+    program = exported.module()
+    torch.manual_seed(0)
+    obs, noise, inner = torch.randn(3, 2, 5), torch.randn(3, 16, 2), torch.randn(3, draws, 16, 2)
+    eager = actor.policy(obs, noise=noise, inner_noise=inner)
+    assert torch.allclose(program(obs, noise, inner), eager, atol=1e-5)
+    assert torch.allclose(program(obs[:1], noise[:1], inner[:1]), eager[:1], atol=1e-5)  # batch dynamic
+    assert not torch.allclose(program(obs, noise, torch.randn_like(inner)), eager, atol=1e-3)
+    with pytest.raises(ValueError, match=r"inner_noise must have shape \[\*B, draws"):
+        actor.policy(obs, noise=noise, inner_noise=inner[:, :1])

@@ -217,6 +217,93 @@ def test_consistency_target_network_follows_the_student_by_its_decay_and_resumes
     assert all(torch.equal(other.training_state()[k], v) for k, v in state["loss_state"].items())
 
 
+@pytest.mark.parametrize("teacher_kind", ["edm", "ddpm"])
+def test_onedps_generator_gradient_is_the_sigma_squared_weighted_score_difference(teacher_kind):
+    # OneDP section 2.3: w(k) = sigma_k^2 (DreamFusion's), so the gradient on the generator's chunk A is
+    # sigma^2 (s_fake - s_real) dx_k/dA: fake - real for EDM, alpha_bar_k (fake - real) for DDPM. The
+    # deterministic generator's fake estimate is A itself. Here mean |A - real| = 0.3 per chunk, so a
+    # per-chunk normaliser (DMD's) would scale the gradient by 1 / 0.3.
+    torch.manual_seed(0)
+    if teacher_kind == "edm":
+        teacher_sampler, student_sampler, scale = EDMHeunSampler(4), OneStepEDMSampler(stochastic=False), 1e3
+        level = torch.tensor([0.1, 0.5, 2.5, 10.0])
+        weight = torch.ones(4, 1, 1)
+    else:
+        teacher_sampler, student_sampler, scale = DDPMSampler(), OneStepDDPMSampler(stochastic=False), 1.0
+        level = torch.tensor([2, 30, 65, 95])
+        weight = DDPMSampler().schedule.alpha_bar(level).float().reshape(4, 1, 1)
+    loss_fn = OneDPDLoss(_actor(student_sampler, scale), teacher=_actor(teacher_sampler, scale))
+    chunk = torch.randn(4, 16, 2, requires_grad=True)
+    real = chunk.detach() - 0.3 * torch.randn(4, 16, 2).sign()
+    view, sampler = loss_fn.teacher_view, loss_fn.policy.sampler
+    view.distillation_levels = lambda n, device: level
+    view.clean = lambda policy, cond, x, lv: real
+    sampler.generate = lambda denoise, z: chunk
+    try:
+        out = loss_fn(_batch(4))
+    finally:
+        del view.distillation_levels, view.clean, sampler.generate
+    (grad,) = torch.autograd.grad(out["loss_onedp"], chunk)
+    assert torch.allclose(grad * chunk.numel(), weight * (chunk - real), atol=1e-6)
+
+
+def test_onedp_draws_ddpm_steps_in_2_to_95_edm_levels_log_normal_and_starts_at_its_fixed_levels():
+    from l1flow_rl.objectives.distillation import teacher_view
+
+    torch.manual_seed(0)
+    steps = teacher_view(DDPMSampler()).distillation_levels(20000, torch.device("cpu"))
+    assert int(steps.min()) == 2 and int(steps.max()) == 95  # OneDP's Table 7 range, both ends drawn
+    log_sigma = teacher_view(EDMHeunSampler()).distillation_levels(20000, torch.device("cpu")).log()
+    assert abs(float(log_sigma.mean()) + 1.2) < 0.05 and abs(float(log_sigma.std()) - 1.2) < 0.05
+    # the generator's fixed input level (OneDP's Table 7: sigma 2.5 for EDM, step 65 for DDPM)
+    assert OneStepEDMSampler().sigma_init == 2.5 and OneStepDDPMSampler().t_init == 65
+
+
+def test_onedp_trains_the_generator_at_1e6_and_its_score_network_20_times_faster_with_beta1_0():
+    for policy in ("onedp_d", "onedp_s"):
+        cfg = compose_config([f"policy={policy}"], command="eval")
+        assert cfg.train.lr == 1e-6 and list(cfg.train.betas) == [0.0, 0.999], policy
+    loss_fn = OneDPSLoss(_actor(OneStepEDMSampler()), teacher=_actor(EDMHeunSampler(4)))
+    trainer = Trainer(loss_fn.actor_network, loss_fn, total_steps=4, lr=1e-6, warmup_steps=0)
+    generator, score = trainer.optimizer.param_groups
+    assert generator["initial_lr"] == 1e-6 and score["initial_lr"] == pytest.approx(2e-5)
+    assert {id(p) for p in score["params"]} == {id(p) for p in loss_fn.extra_parameters()}
+    # a loss whose extra parameters share the actor's rate keeps one group (CP's stop-level offset)
+    cp = ConsistencyLoss(
+        _actor(ConsistencySampler(trajectory=True)), teacher=_actor(EDMHeunSampler(4)), trajectory=True
+    )
+    assert len(Trainer(cp.actor_network, cp, total_steps=2).optimizer.param_groups) == 1
+
+
+@pytest.mark.parametrize("freeze", [True, False])
+def test_consistency_keeps_the_students_encoder_at_the_teachers_as_cp_does(freeze):
+    from l1flow_rl.modules.observations import STATE_KEY
+    from l1flow_rl.networks.encoders.state import StateEncoder
+
+    def actor(sampler):
+        return L1FlowActor.build(
+            StateEncoder({STATE_KEY: 5}, hidden_dims=(8,)),
+            action_dim=2,
+            down_dims=(16, 32),
+            timestep_embed_dim=16,
+            sampler=sampler,
+            timestep_scale=EDM_SCALE,
+        )
+
+    torch.manual_seed(0)
+    teacher, student = actor(EDMHeunSampler(4)), actor(ConsistencySampler())
+    loss_fn = ConsistencyLoss(student, teacher=teacher, freeze_encoder=freeze)
+    trainer = Trainer(student, loss_fn, total_steps=3, lr=1e-2, warmup_steps=0)
+    encoder = {k: v.clone() for k, v in student.policy.encoder.state_dict().items()}
+    for step in range(3):
+        trainer.train_step(_batch(seed=step))
+    after = student.policy.encoder.state_dict()
+    assert all(torch.equal(after[k], v) for k, v in encoder.items()) == freeze
+    assert any(
+        not torch.equal(a, b) for a, b in zip(_net_state(student).values(), _net_state(teacher).values())
+    )
+
+
 @pytest.mark.parametrize(
     ("loss_cls", "teacher_sampler", "student_sampler", "message"),
     [
