@@ -7,15 +7,16 @@ measured in one go). A section is
 
 - **stale** when a path that produces it (:data:`PRODUCERS`: training, evaluation, checkpoint choice,
   the policy's network and loss, ...) changed in a commit after one of its files' commits
-  (``git log <commit>..HEAD -- <paths>``); ``python -m benchmarks.report --check`` fails on it,
-  naming it;
+  (``git log --first-parent <commit>..HEAD -- <paths>``: a merged branch counts as its merge commit,
+  one change on the main line); ``python -m benchmarks.report --check`` fails on it, naming it;
 - **unverified** when a file records no commit (saved before the scripts recorded one), was measured
   with uncommitted changes (``-dirty``), or names a commit this clone lacks (a shallow clone), or
   git is missing: it cannot be dated, so it is shown as such and does not fail ``--check``;
 - **current** otherwise.
 
 A commit that changes a producing path without moving any figure (a refactor, a comment) says so in
-its message with a trailer line ``Results-unaffected: <why>``; such commits are not counted.
+its message with a trailer line ``Results-unaffected: <why>``; such commits are not counted (on a
+merge commit, the trailer speaks for the whole branch it brings in).
 """
 
 from __future__ import annotations
@@ -117,7 +118,16 @@ def changes_since(repo: Path, commit: str, paths: tuple[str, ...]) -> list[tuple
 
 @cache
 def _changes(repo: Path, commit: str, head: str, paths: tuple[str, ...]) -> list[tuple[str, str]] | None:
-    out = _git(repo, "log", "--reverse", "--format=%h%x00%s%x00%B%x01", f"{commit}..{head}", "--", *paths)
+    out = _git(
+        repo,
+        "log",
+        "--first-parent",
+        "--reverse",
+        "--format=%h%x00%s%x00%B%x01",
+        f"{commit}..{head}",
+        "--",
+        *paths,
+    )
     if out is None:
         return None
     found = []

@@ -110,3 +110,28 @@ def test_files_that_cannot_be_dated_are_unverified_not_stale(tmp_path):
     stale = {"provenance": {"commit": measured}}
     status = section_status([("a.json", {}), ("b.json", stale)], producers, repo)
     assert status.state == "stale" and "`b.json`" in status.reasons[0]
+
+
+def test_a_merged_branch_counts_as_its_merge_commit(tmp_path):
+    repo, measured = _repo(tmp_path)
+    main = _git(repo, "rev-parse", "--abbrev-ref", "HEAD")
+    _git(repo, "checkout", "-q", "-b", "side", measured)
+    _commit(repo, "l1flow_rl/networks/unet.py", "a = 2\n", "a change on a branch, before the measurement")
+    _git(repo, "checkout", "-q", main)
+    measured = _commit(repo, "docs/index.md", "words\n", "the main line moves on; the table is measured here")
+    paths = ("l1flow_rl/networks",)
+    assert changes_since(repo, measured, paths) == []
+    _git(repo, "merge", "-q", "--no-ff", "side", "-m", "Merge branch 'side'")
+    # the branch's change reaches the main line with its merge: the merge is what is named
+    assert [subject for _, subject in changes_since(repo, measured, paths)] == ["Merge branch 'side'"]
+    _git(repo, "reset", "-q", "--hard", measured)
+    _git(
+        repo,
+        "merge",
+        "-q",
+        "--no-ff",
+        "side",
+        "-m",
+        "Merge branch 'side'\n\nResults-unaffected: checked bitwise",
+    )
+    assert changes_since(repo, measured, paths) == []  # its trailer speaks for the branch
