@@ -72,7 +72,16 @@ DESIGN = {
     "env": "acting: QC's 32 proposals per chunk cost most (0.29x raw), FQL's one MLP call least (0.79x)",
 }
 #: what the MLP policy's figures decided (the budgets of the MLP starts' runs, bench_finetune_online)
-MLP_DESIGN: dict[str, str] = {}
+MLP_DESIGN: dict[str, str] = {
+    "flowq_over_fql_update": (
+        "flow-Q's update (the actor through both NFEs, the frozen teacher's chunk, the critics) costs "
+        "FQL's: the 2-NFE flow as its own actor saves FQL's distillation of mu, not compute per update"
+    ),
+    "fql_over_qc_update": (
+        "on the MLP the critics (4 x 512) are a quarter of an FQL or flow-Q update: at 0.5 updates per "
+        "env step, 100k env steps with 10k offline updates first cost about 3 hours of one core"
+    ),
+}
 
 
 def make_batch(batch: int, obs_dim: int, action_dim: int, policy: dict) -> TensorDict:

@@ -45,6 +45,9 @@ _PICK_C = "finetune_online_maniskill_pickcube_mixed50c_"
 _PICK_C_CBC = (f"{_PICK_C}continued_bc.json", "controls.continued_bc")
 _SQUARE_CBC = ("finetune_online_robosuite_square50_continued_bc_8k.json", "controls.continued_bc")
 
+_PICK_MLP = "finetune_online_maniskill_pickcube_mlp_mixed50"
+_PICK_MLP_CBC = (f"{_PICK_MLP}.json", "controls.continued_bc")
+
 #: start -> its arms. Every arm of a start must share the start's run and test figure (checked): rows
 #: from different starts are not comparable. The critic arms' starts are the ones they were measured on.
 HEADLINE: dict[str, list[Arm]] = {
@@ -92,6 +95,27 @@ HEADLINE: dict[str, list[Arm]] = {
             _PICK_C_CBC,
         ),
         Arm("continued BC, 8,000 updates", *_PICK_C_CBC),
+    ],
+    "PickCube (50 mixed episodes, MLP start)": [
+        Arm(
+            "filtered BC online, preset `filtered_bc_delta`",
+            f"{_PICK_MLP}.json",
+            "algorithms.filtered_bc_delta",
+            _PICK_MLP_CBC,
+        ),
+        Arm("continued BC, 8,000 updates", *_PICK_MLP_CBC),
+        Arm(
+            "flow-Q online, alpha 10, 0.5 updates per env step",
+            f"{_PICK_MLP}_flowq_30k.json",
+            "algorithms.flowq",
+            _PICK_MLP_CBC,
+        ),
+        Arm(
+            "flow-Q online, alpha 100, 0.5 updates per env step",
+            f"{_PICK_MLP}_flowq_alpha100_10k.json",
+            "algorithms.flowq",
+            _PICK_MLP_CBC,
+        ),
     ],
     "PickCube (25 expert episodes)": [
         Arm(
