@@ -46,6 +46,7 @@ from l1flow_rl.envs.registry import registered_simulators
 from l1flow_rl.evaluation.plan import eval_config_problems
 from l1flow_rl.evaluation.protocols import protocol_names
 from l1flow_rl.finetune.registry import finetune_problems
+from l1flow_rl.finetune.start_check import start_problems
 from l1flow_rl.flow.samplers import make_sampler, sampler_names, sampler_problems, samplers_for
 from l1flow_rl.modules.normalizer import NormalizerMode
 from l1flow_rl.networks.encoders import encoder_names, encoder_problems
@@ -247,6 +248,7 @@ BUILTIN_CHECKS: tuple[Check, ...] = (
     eval_config_problems,
     *finetune.CHECKS,
     finetune_problems,
+    start_problems,
     quality_problems,
     teacher_problems,
 )

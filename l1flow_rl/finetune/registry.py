@@ -148,8 +148,8 @@ def _block_problems(ft: DictConfig, algorithm: FinetuneAlgorithm) -> list[str]:
 
 def finetune_problems(cfg: DictConfig, command: str) -> list[str]:
     """The config validator's check of ``finetune``: the algorithm's name, its settings block and the
-    other keys of ``finetune``; for ``l1flow-rl finetune``, also the algorithm's data rules and
-    ``finetune.rl_horizon`` against the start checkpoint's ``policy.action_steps``."""
+    other keys of ``finetune``; for ``l1flow-rl finetune``, also the algorithm's data rules (the start
+    checkpoint's fit: :func:`l1flow_rl.finetune.start_check.start_problems`)."""
     ft = cfg.get("finetune") if isinstance(cfg, DictConfig) else None
     if ft is None or ft.get("algorithm") is None:
         return []
@@ -159,27 +159,5 @@ def finetune_problems(cfg: DictConfig, command: str) -> list[str]:
         return [str(err)]
     problems = _block_problems(ft, algorithm) + settings_problems(algorithm, ft.get(algorithm.name))
     if command == "finetune":
-        problems += algorithm.check(cfg) + _horizon_problems(cfg)
+        problems += algorithm.check(cfg)
     return problems
-
-
-def _horizon_problems(cfg: DictConfig) -> list[str]:
-    """``finetune.rl_horizon`` executes at most the start's ``policy.action_steps`` per chunk. Read
-    from the checkpoint's recorded config (its tensors mapped, not read); a checkpoint that cannot
-    be read is left to the path check and to the job, which name it."""
-    horizon, path = cfg.finetune.get("rl_horizon") or 0, cfg.get("checkpoint")
-    if not path or not isinstance(horizon, int) or horizon < 1:  # 0: the start's action_steps
-        return []
-    from l1flow_rl.errors import CheckpointReadError
-    from l1flow_rl.workspace.checkpoint import load_checkpoint  # (it imports this module)
-
-    try:
-        steps = load_checkpoint(path, mmap=True)["config"]["policy"]["action_steps"]
-    except (CheckpointReadError, KeyError, TypeError):
-        return []
-    if horizon <= steps:
-        return []
-    return [
-        f"finetune.rl_horizon={horizon}: expected at most the checkpoint's policy.action_steps={steps} "
-        f"(the actions executed per chunk; 0: all {steps})"
-    ]

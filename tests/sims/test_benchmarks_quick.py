@@ -23,6 +23,11 @@ def test_latency_quick_mode_saves_every_method_with_its_nfe(tmp_path):
         "ddim16": 16,
         "ddpm100": 100,
         "regression": 1,
+        "edm_heun18": 35,  # Heun: 2N - 1 network calls for N levels
+        "edm_heun10": 19,
+        "cp1": 1,
+        "cp3": 3,
+        "onedp1": 1,
         "floor_2_unet": 2,
         "diffusers_ddpm100": 100,
         "diffusers_ddim16": 16,
@@ -33,7 +38,16 @@ def test_latency_quick_mode_saves_every_method_with_its_nfe(tmp_path):
     assert block["slowdown_vs_l1flow"]["l1flow_2nfe"] == 1.0
     assert all(v["wall_ms"] > 0 and v["cpu_ms"] >= 0 for v in block["ms"].values())
     assert block["l1flow_over_floor"] > 0
-    assert set(figures["train_step_ms"]["ms"]) == {"l1flow_2nfe", "vflow_euler10", "ddpm100", "regression"}
+    assert set(figures["train_step_ms"]["ms"]) == {
+        "l1flow_2nfe",
+        "vflow_euler10",
+        "ddpm100",
+        "regression",
+        "edm_heun18",
+        "consistency",
+        "onedp_d",
+        "onedp_s",
+    }
 
 
 def test_multimodal_quick_mode_reports_every_family_and_evaluation(tmp_path):

@@ -26,7 +26,7 @@ def test_default_protocol_keeps_the_task_and_splits_seeds():
     plan = plan_for("maniskill_pushcube")
     assert plan.protocol.name == "default" and plan.headline == "success_once"
     assert plan.task.max_episode_steps == 150  # the task config's own limit (demos run up to 129)
-    assert plan.split("test") == (50, 100_000) and plan.split("val") == (
+    assert plan.split("test") == (100, 100_000) and plan.split("val") == (
         20,
         10_000,
     )  # eval.val_episodes: 20 by default
@@ -119,7 +119,7 @@ def test_bad_protocol_and_overlapping_seeds_fail_when_the_config_is_composed():
         ConfigValidationError, match=r"eval.val_seed=100010 \(\+20 episodes\) overlaps the test seeds"
     ):
         compose_config(["eval.val_seed=100010"], command="train")
-    compose_config(["eval.val_seed=100050"], command="train")  # adjacent ranges are fine
+    compose_config(["eval.val_seed=100100"], command="train")  # adjacent ranges are fine (100 test episodes)
 
 
 @pytest.mark.maniskill
