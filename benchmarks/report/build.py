@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.report import finetune_overview
-from benchmarks.report.finetune import render_critic_bias, render_finetune_cost, render_noise_authority
+from benchmarks.report.finetune import render_critic_bias, render_finetune_cost, render_noise_authorities
 from benchmarks.report.speed import (
     render_env_throughput,
     render_export_latency,
@@ -186,12 +186,14 @@ GROUPS: dict[str, list[Section]] = {
             r"finetune_cost_.*\.json",
             "Fine-tuning: cost of an update and of acting",
             render_finetune_cost,
+            True,
             produced_by=(*POLICY, "fine-tuning"),
         ),
         Section(
             r"noise_authority.*\.json",
             "Steering authority of the input noise (what DSRL can move)",
-            render_noise_authority,
+            render_noise_authorities,
+            True,
             produced_by=(*POLICY, "fine-tuning"),
         ),
         Section(

@@ -14,6 +14,7 @@ __all__ = [
     "render_critic_bias",
     "render_finetune_cost",
     "render_finetune_online",
+    "render_noise_authorities",
     "render_noise_authority",
 ]
 
@@ -32,33 +33,36 @@ def _network(data: dict) -> str:
     return f"{'UNet' if data['network'] == 'unet' else 'MLP'} {data['network_dims']}"
 
 
-def render_finetune_cost(data: dict) -> str:
+def render_finetune_cost(files: list[tuple[str, dict]]) -> str:
+    """One table of every file's settings (one file per policy network), then acting against the raw
+    simulator, then what each figure decided."""
+    first = files[0][1]
     lines = [
-        f"Task {data['task']}, batch {data['batch']}, {_network(data)}, median wall ms of "
-        f"{data['rounds']} rounds per part of one update (a part's share can exceed the update's: each is "
-        "timed alone).",
+        f"Task {first['task']}, batch {first['batch']}, median wall ms per part of one update over "
+        + ", ".join(f"{d['rounds']} rounds ({_network(d)})" for _, d in files)
+        + " (a part's share can exceed the update's: each is timed alone).",
         "",
-        "| setting | " + " | ".join(_PARTS) + " | updates/s |",
-        "|---|" + "---|" * (len(_PARTS) + 1),
+        "| policy network | setting | " + " | ".join(_PARTS) + " | updates/s |",
+        "|---|---|" + "---|" * (len(_PARTS) + 1),
     ]
-    for name, parts in data["wall_ms"].items():
-        cells = " | ".join(_ms(parts.get(p)) for p in _PARTS)
-        lines.append(f"| {name} | {cells} | {data['updates_per_s'][name]:.3g} |")
-    env = data["env"]
-    lines += [
-        "",
-        f"Acting ({env['setting']}): raw simulator {env['raw_steps_per_s']:.4g} steps/s.",
-        "",
-        "| acting module | steps/s | × raw |",
-        "|---|---|---|",
-    ]
-    lines += [
-        f"| {name} | {a['steps_per_s']:.4g} | {a['over_raw']:.2f} |" for name, a in env["adapters"].items()
-    ]
-    design = data.get("design") or {}
+    for _, data in files:
+        for name, parts in data["wall_ms"].items():
+            cells = " | ".join(_ms(parts.get(p)) for p in _PARTS)
+            lines.append(f"| {_network(data)} | {name} | {cells} | {data['updates_per_s'][name]:.3g} |")
+    lines += ["", "| policy network | acting module | steps/s | × raw |", "|---|---|---|---|"]
+    for _, data in files:
+        env = data["env"]
+        lines.append(
+            f"| {_network(data)} | raw simulator ({env['setting']}) | {env['raw_steps_per_s']:.4g} | 1 |"
+        )
+        lines += [
+            f"| {_network(data)} | {name} | {a['steps_per_s']:.4g} | {a['over_raw']:.2f} |"
+            for name, a in env["adapters"].items()
+        ]
+    design = [(data, key, text) for _, data in files for key, text in (data.get("design") or {}).items()]
     if design:
         lines += ["", "What each figure decided:", ""]
-        lines += [f"- `{key}`: {text}" for key, text in design.items()]
+        lines += [f"- {_network(data)}, `{key}`: {text}" for data, key, text in design]
     return "\n".join(lines)
 
 
@@ -153,6 +157,19 @@ _GROUPS = ("position", "rotation", "gripper")
 
 def _group_mean(values: list[float], dims: list[int] | None) -> str:
     return f"{sum(values[d] for d in dims) / len(dims):.3g}" if dims else "–"
+
+
+def render_noise_authorities(files: list[tuple[str, dict]]) -> str:
+    """Every file's checkpoints in one table; the files must share the draws they were measured with."""
+    first = files[0][1]
+    keys = ("states", "draws", "seed", "bound")
+    for name, data in files[1:]:
+        if any(data[k] != first[k] for k in keys):
+            raise ValueError(
+                f"{name}: measured with other {keys} than {files[0][0]}: one table cannot hold both"
+            )
+    checkpoints = {k: v for _, data in files for k, v in data["checkpoints"].items()}
+    return render_noise_authority({**first, "checkpoints": checkpoints})
 
 
 def render_noise_authority(data: dict) -> str:
