@@ -22,9 +22,13 @@ from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
 
+from torchrl.envs import ParallelEnv, SerialEnv
+
 __all__ = [
     "WORKER_IGNORED_SIGNALS",
     "MainGuardError",
+    "ParallelWorkerEnv",
+    "SerialWorkerEnv",
     "check_main_guard",
     "explain_worker_start_failure",
     "ignore_stop_signals",
@@ -223,3 +227,24 @@ def simulator_forkserver(preload: list[str]) -> str:
     _kill_daemonic_workers_at_exit()
     standard_start_method()
     return "forkserver"
+
+
+class _ClosesQuietlyUnstarted:
+    """``close()`` on a batched env whose workers never started does nothing: TorchRL counts such an
+    env as closed and raises "trying to close a closed environment". Once started, TorchRL's rules."""
+
+    def _start_workers(self) -> None:
+        self.__dict__["_workers_started_once"] = True  # EnvBase routes some attributes to its specs
+        super()._start_workers()
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        started = self.__dict__.get("_workers_started_once", False)
+        super().close(raise_if_closed=raise_if_closed and started)
+
+
+class ParallelWorkerEnv(_ClosesQuietlyUnstarted, ParallelEnv):
+    """TorchRL's ``ParallelEnv``, closable before its first reset."""
+
+
+class SerialWorkerEnv(_ClosesQuietlyUnstarted, SerialEnv):
+    """TorchRL's ``SerialEnv``, closable before its first reset."""

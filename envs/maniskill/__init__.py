@@ -11,9 +11,9 @@ import torch
 from l1flow_rl.envs.maniskill.env import INSTALL_HINT, ManiSkillEnv
 from l1flow_rl.envs.maniskill.protocol import PROTOCOL as PROTOCOL  # registers eval.protocol=maniskill
 from l1flow_rl.envs.registry import SimulatorSpec, register_simulator
-from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure
+from l1flow_rl.envs.workers import ParallelWorkerEnv, check_main_guard, explain_worker_start_failure
 from tensordict.utils import NestedKey
-from torchrl.envs import EnvBase, ParallelEnv
+from torchrl.envs import EnvBase
 
 from l1flow_rl.config import TaskConfig
 
@@ -72,7 +72,7 @@ def make_maniskill_env(
     check_main_guard(what)
     # Workers report their specs themselves, so that this process never builds a simulator.
     with explain_worker_start_failure(what):
-        return ParallelEnv(
+        return ParallelWorkerEnv(
             num_envs,
             functools.partial(ManiSkillEnv, task, num_envs=None, **env_kwargs),
             mp_start_method=use_forkserver(),

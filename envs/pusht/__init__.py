@@ -14,9 +14,15 @@ import torch
 from l1flow_rl.envs.pusht.env import PushTEnv
 from l1flow_rl.envs.pusht.protocol import PROTOCOL as PROTOCOL  # registers eval.protocol=diffusion_policy
 from l1flow_rl.envs.registry import SimulatorSpec, register_simulator
-from l1flow_rl.envs.workers import check_main_guard, explain_worker_start_failure, signal_safe_factory
+from l1flow_rl.envs.workers import (
+    ParallelWorkerEnv,
+    SerialWorkerEnv,
+    check_main_guard,
+    explain_worker_start_failure,
+    signal_safe_factory,
+)
 from tensordict.utils import NestedKey
-from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
+from torchrl.envs import EnvBase
 
 from l1flow_rl.config import TaskConfig
 
@@ -80,12 +86,12 @@ def make_pusht_env(
     if backend == "auto":
         backend = "parallel" if task.obs_mode in ("pixels", "pixels_agent_pos") else "serial"
     if backend == "serial" or num_envs == 1:
-        env = SerialEnv(num_envs, make, device=device)
+        env = SerialWorkerEnv(num_envs, make, device=device)
     else:
         what = f"PushT with num_envs={num_envs} in worker processes ({task.name!r})"
         check_main_guard(what)  # spawned workers re-import the main script
         with explain_worker_start_failure(what):
-            env = ParallelEnv(
+            env = ParallelWorkerEnv(
                 num_envs, signal_safe_factory(make), mp_start_method=mp_start_method, device=device
             )
     return env

@@ -18,8 +18,9 @@ from l1flow_rl.envs.robosuite.dataset import prepare_robomimic_dataset, robosuit
 from l1flow_rl.envs.robosuite.env import RobosuiteEnv
 from l1flow_rl.envs.robosuite.pool import forkserver
 from l1flow_rl.envs.robosuite.sim import INSTALL_HINT, image_key
+from l1flow_rl.envs.workers import ParallelWorkerEnv, SerialWorkerEnv
 from tensordict.utils import NestedKey
-from torchrl.envs import EnvBase, ParallelEnv, SerialEnv
+from torchrl.envs import EnvBase
 
 from l1flow_rl.config import TaskConfig
 
@@ -54,9 +55,9 @@ def make_robosuite_env(
         _worker_env, task, ignore_terminations=ignore_terminations, render=render, camera=camera
     )
     if num_envs == 1:
-        env = SerialEnv(1, make)
+        env = SerialWorkerEnv(1, make)
     else:
-        env = ParallelEnv(num_envs, make, mp_start_method=forkserver())
+        env = ParallelWorkerEnv(num_envs, make, mp_start_method=forkserver())
     return env.to(device) if device.type != "cpu" else env
 
 

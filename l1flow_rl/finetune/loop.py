@@ -52,7 +52,7 @@ from l1flow_rl.workspace.checkpoint import (
 )
 from l1flow_rl.workspace.dataset import load_task_episodes, resolve_dataset
 from l1flow_rl.workspace.distributed import resolve_device
-from l1flow_rl.workspace.harness import Run
+from l1flow_rl.workspace.harness import Run, finished_run
 
 __all__ = [
     "Finetune",
@@ -79,7 +79,8 @@ MAY_CHANGE = (
 
 def run_finetune(cfg: DictConfig) -> int:
     """The job: the BC start and the algorithm, then inside the harness's run the start's validation,
-    the offline phase, the online phase and the report. Returns the exit code."""
+    the offline phase, the online phase and the report. Returns the exit code. ``resume=auto`` skips a
+    run directory that holds this very run, finished (a grid relaunched)."""
     if not cfg.checkpoint:
         print("l1flow-rl finetune: pass checkpoint=PATH (the L1 Flow BC checkpoint to fine-tune)")
         return 2
@@ -88,6 +89,12 @@ def run_finetune(cfg: DictConfig) -> int:
     algorithm = get_algorithm(cfg.finetune.algorithm)
     with open_dict(cfg):  # the algorithm's block with its defaults, as config.yaml and checkpoints record it
         cfg.finetune[algorithm.name] = algorithm.settings_of(cfg.finetune)
+    done = finished_run(cfg, may_differ=other_blocks(algorithm))  # a grid relaunched: a finished job
+    if done is not None:
+        print(
+            f"l1flow-rl finetune: {cfg.run_dir} holds this run, finished ({done.name}); skipped (resume=auto)"
+        )
+        return 0
     configs = acting_configs(cfg)
     with Run(
         cfg,

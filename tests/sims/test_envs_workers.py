@@ -329,3 +329,25 @@ def test_train_and_eval_jobs_close_their_worker_envs(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     found = [line for line in proc.stdout.splitlines() if line.startswith("CHILDREN")]
     assert found == ["CHILDREN 0 []", "CHILDREN 0 []"], proc.stdout[-3000:]  # each job's rc, live children
+
+
+@pytest.mark.parametrize(
+    "task, kwargs",
+    [
+        pytest.param("pusht_state", {"backend": "parallel"}, id="pusht-parallel"),
+        pytest.param("pusht_state", {"backend": "serial"}, id="pusht-serial"),
+    ],
+)
+def test_an_env_closed_before_its_first_reset_closes_quietly(task, kwargs):
+    # TorchRL counts batched envs as closed until their workers start, and raised on this close()
+    pytest.importorskip("gym_pusht")
+    from l1flow_rl.envs import make_env
+
+    env = make_env(task, num_envs=2, **kwargs)
+    env.close()
+    env.close()  # nothing started, nothing to close: still quiet
+    started = make_env(task, num_envs=2, **kwargs)
+    assert started.rollout(2).shape == (2, 2)  # a started one runs and closes as before
+    started.close()
+    with pytest.raises(RuntimeError, match="closed environment"):
+        started.close()  # closing a closed env is still the user's error, as in TorchRL

@@ -228,3 +228,20 @@ def test_a_flowq_run_goes_end_to_end_and_resumes_exactly_when_killed_mid_way(
         assert all(torch.equal(v, resumed["optimizer"]["state"][k][n]) for n, v in state.items())
     strip = lambda rows: [{k: v for k, v in r.items() if not k.endswith("_per_s")} for r in rows]  # noqa: E731
     assert strip(resumed["records"]["rounds"]) == strip(straight["records"]["rounds"])
+
+
+def test_a_relaunched_grid_skips_a_finished_flowq_run_and_refuses_one_of_another_setting(
+    tmp_path, bc_checkpoint, capsys
+):
+    run_dir = tmp_path / "grid" / "flowq" / "seed0"
+    args = _args(run_dir, bc_checkpoint, "eval.enabled=false", "resume=auto")
+    assert main(args) == 0
+    latest = run_dir / "checkpoints" / "latest.pt"
+    written = latest.stat().st_mtime_ns, (run_dir / "summary.json").read_bytes()
+    capsys.readouterr()
+    assert main(args) == 0  # the same job again: nothing is trained, nothing rewritten
+    assert "holds this run, finished (summary.json); skipped (resume=auto)" in capsys.readouterr().out
+    assert (latest.stat().st_mtime_ns, (run_dir / "summary.json").read_bytes()) == written
+    assert main([*args, "finetune.flowq.alpha=30"]) != 0  # another setting: an error, not its figure
+    assert "finetune.flowq.alpha: the finished run has 10.0, config asks for 30.0" in capsys.readouterr().err
+    assert latest.stat().st_mtime_ns == written[0]
