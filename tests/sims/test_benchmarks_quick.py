@@ -464,3 +464,28 @@ def test_open_loop_error_reads_each_runs_checkpoint_on_the_same_windows(tmp_path
         bench_open_loop.main([*argv, "--seeds", "0", "--windows", "40", "--quick", "--out", str(again)]) == 0
     )
     assert json.loads(again.read_text())["runs"] == figures["runs"]
+
+
+@pytest.mark.maniskill
+@pytest.mark.slow  # ~15 s: a benchmark script, run on purpose
+def test_reinflow_cost_quick_mode_prices_acting_ppo_and_env_stepping(tmp_path):
+    pytest.importorskip("mani_skill")
+    from benchmarks.finetune import bench_reinflow_cost as bench
+
+    out = tmp_path / "reinflow_cost.json"
+    assert bench.main(["--quick", "--envs", "2", "--out", str(out)]) == 0
+    figures = json.loads(out.read_text())
+    assert figures["quick"] is True and figures["network"] == "mlp" and figures["envs"] == 2
+    assert set(figures["wall_ms"]) == {
+        "ppo_minibatch",
+        "chunk_2nfe_b1",
+        "chain_b1",
+        "chunk_2nfe_b2",
+        "chain_b2",
+    }
+    per = figures["core_hours_per_million_env_steps"]
+    assert all(per[k] > 0 for k in ("env", "acting", "ppo"))
+    assert per["total"] == pytest.approx(per["env"] + per["acting"] + per["ppo"], abs=0.005)
+    # both cores for 2 hours over the total: the bound the file states
+    assert figures["env_steps_in_2h_of_2_cores_at_most"] == pytest.approx(4 * 1e6 / per["total"], rel=0.01)
+    assert figures["env"]["workers"]["num_envs"] == 2 and figures["env"]["in_process"]["raw_steps_per_s"] > 0

@@ -9,6 +9,7 @@ import pytest
 
 MODULES = [
     "l1flow_rl.modules.actor",
+    "l1flow_rl.modules.noisy_chain",
     "l1flow_rl.networks.critic",
     "l1flow_rl.networks.mlp",
     "l1flow_rl.networks.registry",
