@@ -84,6 +84,19 @@ MLP_DESIGN: dict[str, str] = {
 }
 
 
+def state_sizes(task) -> tuple[int, int]:
+    """(observation size, action size) of a ManiSkill state task, read from one env."""
+    from l1flow_rl.envs.maniskill.env import make_gym_env
+
+    probe = make_gym_env(task, 1, torch.device("cpu"), render=False)
+    try:
+        return int(probe.unwrapped.single_observation_space.shape[-1]), int(
+            probe.unwrapped.single_action_space.shape[0]
+        )
+    finally:
+        probe.close()
+
+
 def make_batch(batch: int, obs_dim: int, action_dim: int, policy: dict) -> TensorDict:
     to, horizon = policy["obs_horizon"], policy["pred_horizon"]
     g = torch.Generator().manual_seed(0)
@@ -164,12 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         args.batch, args.rounds, args.env_steps = 4, 1, 4
     torch.set_num_threads(args.threads)
     task = load_task_config(args.task)
-    from l1flow_rl.envs.maniskill.env import make_gym_env
-
-    probe = make_gym_env(task, 1, torch.device("cpu"), render=False)
-    obs_dim = int(probe.unwrapped.single_observation_space.shape[-1])
-    action_dim = int(probe.unwrapped.single_action_space.shape[0])
-    probe.close()
+    obs_dim, action_dim = state_sizes(task)
     policy = dataclasses.asdict(PolicyConfig())
     network = OmegaConf.to_container(compose_config([f"network={args.network}"]).network, resolve=True)
     data = make_batch(args.batch, obs_dim, action_dim, policy)

@@ -28,6 +28,7 @@ import torch
 from omegaconf import OmegaConf
 from torch import nn
 
+from benchmarks.finetune.bench_finetune_cost import state_sizes
 from benchmarks.lib.common import interleaved, machine_info, parse_args, save_results
 from benchmarks.speed.bench_env_throughput import measure, raw_in_process, raw_processes
 from l1flow_rl.commands.cli import compose_config
@@ -63,12 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         args.batch, args.rounds, args.env_steps = 4, 1, 8
     torch.set_num_threads(1)
     task = load_task_config(args.task)
-    from l1flow_rl.envs.maniskill.env import make_gym_env
-
-    probe = make_gym_env(task, 1, torch.device("cpu"), render=False)
-    obs_dim = int(probe.unwrapped.single_observation_space.shape[-1])
-    action_dim = int(probe.unwrapped.single_action_space.shape[0])
-    probe.close()
+    obs_dim, action_dim = state_sizes(task)
     policy_cfg = dataclasses.asdict(PolicyConfig())
     network = OmegaConf.to_container(compose_config(["network=mlp"]).network, resolve=True)
     flow = build_actor(policy_cfg, {"state": (obs_dim,)}, action_dim, None, network)
@@ -153,15 +149,10 @@ def main(argv: list[str] | None = None) -> int:
             k: round(v * total / 2 / 3600, 1) for k, v in PUBLISHED_ENV_STEPS.items()
         },
     }
-    print(
-        {
-            k: result[k]
-            for k in ("ratios", "core_hours_per_million_env_steps", "env_steps_in_2h_of_2_cores_at_most")
-        }
-    )
-    out = Path(args.out or f"benchmarks/results/reinflow_cost_{task.name}_mlp{'_quick' * args.quick}.json")
-    save_results(out, result)
-    print(f"wrote {out}")
+    headline = ("ratios", "core_hours_per_million_env_steps", "env_steps_in_2h_of_2_cores_at_most")
+    print({k: result[k] for k in headline})
+    name = f"reinflow_cost_{task.name}_mlp{'_quick' * args.quick}.json"
+    print(f"wrote {save_results(Path(args.out or f'benchmarks/results/{name}'), result)}")
     return 0
 
 
