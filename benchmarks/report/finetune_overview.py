@@ -179,7 +179,12 @@ def _block(data: dict, key: str, file: str) -> dict:
 def _tests(block: dict, online: bool) -> list[float]:
     """The seeds' test success_once, in seed order."""
     if online:
-        return [r["test"]["success_once"] for _, r in sorted(block["runs"].items()) if r.get("test")]
+        runs = sorted(block["runs"].items())
+        return [
+            r["test"]["success_once"]
+            for _, r in runs
+            if (r.get("test") or {}).get("success_once") is not None
+        ]
     seeds = block.get("seeds") or {}
     return [s["test"]["success_once"] for _, s in sorted(seeds.items())] or [block["test"]["success_once"]]
 
@@ -389,13 +394,17 @@ def arms_table(files: list[tuple[Path, dict]], headline: dict[str, list[Arm]] = 
     for i, (_, data) in enumerate(files, 1):
         s = data["controls"]["bc_start"]
         key = (s["run_dir"], s["test"]["success_once"])
+        blocks = {**data.get("controls", {}), **data.get("algorithms", {})}
         for group in ("controls", "algorithms"):
             for name, block in data.get(group, {}).items():
-                if name == "bc_start":
-                    continue
+                if name == "bc_start" or (name.endswith("_last") and name.removesuffix("_last") in blocks):
+                    continue  # an arm's last weights are a figure of its own row
                 online = group == "algorithms"
                 tests = _tests(block, online)
-                if not tests:  # an arm whose runs all lack a test
+                last = blocks.get(f"{name}_last")
+                last_tests = _tests(last, False) if last is not None else []
+                stopped = online and not tests and bool(block.get("aggregate", {}).get("curve"))
+                if not tests and not stopped:  # an arm whose runs all lack a test, and a curve
                     continue
                 if online:
                     overrides = block.get("budget_overrides")
@@ -404,7 +413,7 @@ def arms_table(files: list[tuple[Path, dict]], headline: dict[str, list[Arm]] = 
                     overrides = block.get("overrides")
                     replayed = _data_steps(block)
                     steps = "0" if replayed is None else f"{_k(replayed)} of replays"
-                row = [arm_name(group, name, block, overrides), len(tests), steps, tests]
+                row = [arm_name(group, name, block, overrides), len(tests), steps, tests, last_tests]
                 by_start.setdefault(key, []).append((row, _validation(block) if online else "–", i))
     lines = [
         "| start (its test) | arm | seeds | env steps | test success (per seed) | validation (mean) at env "
@@ -412,17 +421,23 @@ def arms_table(files: list[tuple[Path, dict]], headline: dict[str, list[Arm]] = 
         "|---|---|---|---|---|---|---|---|",
     ]
     for (run, start_test), rows in by_start.items():
-        for j, ((arm, seeds, steps, tests), curve, i) in enumerate(rows):
-            mean = sum(tests) / len(tests)
+        for j, ((arm, seeds, steps, tests, last_tests), curve, i) in enumerate(rows):
             first = f"{names.get((run, start_test), f'`{run}`')} ({start_test:.2f})" if j == 0 else ""
+            if not tests:  # stopped before its test: its validation curve is the figure
+                lines.append(f"| {first} | {arm} | stopped | {steps} | – | {curve} | – | {i} |")
+                continue
+            mean = sum(tests) / len(tests)
             per_seed = " / ".join(f"{t:.2f}" for t in tests)
+            if last_tests:
+                per_seed += f"; last weights {sum(last_tests) / len(last_tests):.2f}"
             lines.append(
                 f"| {first} | {arm} | {seeds} | {steps} | {mean:.2f} ({per_seed}) "
                 f"| {curve} | {_points(mean - start_test)} | {i} |"
             )
     note = (
-        "Test: 100 episodes per seed on the test seeds, of the best-validated weights, or of the last "
-        "ones where the arm says so; validation: 50 episodes, mean over seeds. An arm without env steps "
+        "Test: 100 episodes per seed on the test seeds, of the best-validated weights (after a semicolon: "
+        "of the last weights, mean over seeds), or of the last ones where the arm says so; validation: 50 "
+        "episodes, mean over seeds. An arm without env steps "
         "trains on the start's data only (its TD-only arm: the critic arms' updates without collecting)."
     )
     return "\n".join(lines) + "\n\n" + note

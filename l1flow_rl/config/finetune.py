@@ -64,6 +64,10 @@ class OfflineConfig:
     # updates; a killed offline phase resumes from here (a Square run lost 6,934 of 8,000 updates when
     # only the phase's end was saved)
     checkpoint_every: int = bounded(1000, ge=0, zero="only at the phase's end")
+    # train the critics alone (algorithms whose actor is the BC start: flowq, qc). flow-Q's actor
+    # trained on the demonstrations' critics fell from 0.32 to 0.00 validation in 5,000 offline updates
+    # on PickCube's MLP start (benchmarks/results/, finetune_online_*_mlp_mixed50_flowq_offline_actor.json)
+    critic_only: bool = False
 
 
 @dataclass

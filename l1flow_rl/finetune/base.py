@@ -308,6 +308,9 @@ class FinetuneAlgorithm:
         successful_episodes_only: windows only in episodes that ended in success, demonstrations and
             online episodes alike (filtered BC).
         uses_offline_data: False where the batches need entries demonstrations lack (DSRL's noise).
+        actor_is_start: the actor is the BC start until online updates move it (flow-Q: a copy of the
+            flow; QC: the flow's proposals), so an offline phase may train the critics alone
+            (``offline.critic_only``) and the TD targets still come from a meaningful actor.
         with_flow: None, or a method ``with_flow(loss, flow)``: the acting module with ``flow`` in place
             of the loss's trained BC flow, for an algorithm whose acting module wraps that flow, so that
             the flow's EMA acts (``finetune.ema_power``). With None, the EMA averages the whole acting
@@ -322,6 +325,7 @@ class FinetuneAlgorithm:
     online_anchor_key: ClassVar[str | None] = None
     successful_episodes_only: ClassVar[bool] = False
     uses_offline_data: ClassVar[bool] = True
+    actor_is_start: ClassVar[bool] = False
     with_flow: Callable[[LossModule, L1FlowActor], nn.Module] | None = None
 
     def build(self, flow: L1FlowActor, cfg: DictConfig, *, seed: int = 0) -> LossModule:
@@ -370,6 +374,13 @@ class FinetuneAlgorithm:
                     f"{cfg.online.seed_with_offline}: finetune.algorithm={self.name} cannot use "
                     "demonstrations; use online.offline_fraction=0 online.seed_with_offline=false"
                 )
+        if cfg.offline.get("critic_only") and not (
+            self.actor_is_start and isinstance(self, ChunkCriticAlgorithm)
+        ):
+            problems.append(
+                f"offline.critic_only=true: finetune.algorithm={self.name} has no critic, or an actor that "
+                "must learn in the offline phase (its TD targets come from it); use offline.critic_only=false"
+            )
         if self.online_keys and cfg.online.get("action_noise", 0.0) > 0:
             problems.append(
                 f"online.action_noise={cfg.online.action_noise}: finetune.algorithm={self.name} learns from "
@@ -419,18 +430,25 @@ def update(
     batch: TensorDictBase,
     ema: DPEma | None = None,
     averaged: nn.Module | None = None,
+    *,
+    critic_only: bool = False,
 ) -> dict[str, Tensor]:
     """One update: every ``loss_*`` term summed, one Adam step, one Polyak step of the target networks,
     one step of the EMA (``finetune.ema_power``) of ``averaged`` (default: the loss's acting actor).
-    Returns the loss's outputs (tensors: read to the host only when logged)."""
-    out = loss(batch)
+    ``critic_only``: the critics' TD term alone (a :class:`ChunkCriticLoss`); the actor and its EMA
+    stay as they are. Returns the loss's outputs (tensors: read to the host only when logged)."""
+    if critic_only:
+        loss_q, diagnostics = loss.qvalue_loss(batch)
+        out = {"loss_qvalue": loss_q, **diagnostics}
+    else:
+        out = loss(batch)
     total = sum(v for k, v in out.items() if k.startswith("loss_"))
     optimizer.zero_grad(set_to_none=True)
     total.backward()
     optimizer.step()
     if target_update is not None:
         target_update.step()
-    if ema is not None:
+    if ema is not None and not critic_only:
         ema.update_parameters(loss.actor if averaged is None else averaged)
     return {k: v.detach() for k, v in out.items()}
 
@@ -505,9 +523,17 @@ class Learner:
         self.optimizer = torch.optim.Adam(trainable, lr=float(cfg.lr))
         self.target_update = algorithm.target_update(loss, float(cfg.tau))
 
-    def update(self, batch: TensorDictBase) -> dict[str, Tensor]:
+    def update(self, batch: TensorDictBase, *, critic_only: bool = False) -> dict[str, Tensor]:
         """One update on ``batch`` (:func:`update`)."""
-        return update(self.loss, self.optimizer, self.target_update, batch, self.ema, self.averaged)
+        return update(
+            self.loss,
+            self.optimizer,
+            self.target_update,
+            batch,
+            self.ema,
+            self.averaged,
+            critic_only=critic_only,
+        )
 
     def state_dict(self) -> dict[str, Any]:
         """The checkpoint's entries: ``model`` (the acting module's raw weights), ``ema`` (the acting

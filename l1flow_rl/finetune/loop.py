@@ -274,7 +274,8 @@ class Finetune:
         off, run = self.cfg.offline, self.run
         with run.phase("offline"):
             while self.progress["offline_updates"] < off.steps:
-                metrics = self.learner.update(self.buffers.sample_offline().to(self.device))
+                batch = self.buffers.sample_offline().to(self.device)
+                metrics = self.learner.update(batch, critic_only=bool(off.critic_only))
                 self.progress["offline_updates"] += 1
                 n = self.progress["offline_updates"]
                 if n % self.cfg.finetune.log_every == 0 or n == off.steps:

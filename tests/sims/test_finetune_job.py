@@ -153,11 +153,11 @@ def _killed_and_resumed(run_dir, args, monkeypatch, kill_at: int = 4 + 2, saved:
     saved = saved or {"env_steps": 40}
     real_update, calls = Learner.update, {"n": 0}
 
-    def crashing_update(self, batch):
+    def crashing_update(self, batch, **kwargs):
         calls["n"] += 1
         if calls["n"] == kill_at:
             raise RuntimeError("simulated kill")
-        return real_update(self, batch)
+        return real_update(self, batch, **kwargs)
 
     monkeypatch.setattr(Learner, "update", crashing_update)
     with pytest.raises(RuntimeError, match="simulated kill"):

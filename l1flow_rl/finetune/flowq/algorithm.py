@@ -19,6 +19,7 @@ class FlowQ(ChunkCriticAlgorithm):
     run's counter."""
 
     name = "flowq"
+    actor_is_start = True
     settings = FlowQSettings
 
     def build(self, flow: L1FlowActor, cfg: DictConfig, *, seed: int = 0) -> FlowQLoss:

@@ -17,6 +17,7 @@ class QC(ChunkCriticAlgorithm):
     """Best-of-N proposals of the flow, picked by the online critics (:class:`~l1flow_rl.QCLoss`)."""
 
     name = "qc"
+    actor_is_start = True
     settings = QCSettings
 
     def build(self, flow: L1FlowActor, cfg: DictConfig, *, seed: int = 0) -> QCLoss:

@@ -137,6 +137,34 @@ def test_the_preset_composes_validates_and_builds_its_loss():
             compose_config(["finetune=flowq", "checkpoint=bc.pt", override], command="finetune")
 
 
+def test_a_critic_only_update_moves_the_critics_and_leaves_the_actor_and_its_ema_at_the_start():
+    run = learner(small_flow(), ema_power=0.75)
+    actor = {k: v.clone() for k, v in run.loss.actor.state_dict().items()}
+    ema = {k: v.clone() for k, v in run.acting.state_dict().items()}
+    critic = [p.detach().clone() for p in run.loss.critic.parameters()]
+    out = run.update(transitions(), critic_only=True)
+    assert sorted(k for k in out if k.startswith("loss_")) == ["loss_qvalue"]
+    assert all(torch.equal(v, run.loss.actor.state_dict()[k]) for k, v in actor.items())
+    assert all(torch.equal(v, run.acting.state_dict()[k]) for k, v in ema.items())
+    assert any(not torch.equal(a, b) for a, b in zip(critic, run.loss.critic.parameters(), strict=True))
+    run.update(transitions())  # the full update moves the actor
+    assert any(not torch.equal(v, run.loss.actor.state_dict()[k]) for k, v in actor.items())
+
+
+@pytest.mark.parametrize(
+    "preset, ok", [("flowq", True), ("qc", True), ("fql", False), ("filtered_bc", False)]
+)
+def test_critic_only_offline_is_refused_where_the_actor_must_learn_offline_or_there_is_no_critic(preset, ok):
+    args = [f"finetune={preset}", "checkpoint=bc.pt", "offline.critic_only=true"]
+    if ok:
+        assert compose_config(args, command="finetune").offline.critic_only is True
+    else:
+        with pytest.raises(
+            ConfigValidationError, match=f"offline.critic_only=true: finetune.algorithm={preset}"
+        ):
+            compose_config(args, command="finetune")
+
+
 # -- end to end on the point-mass double -------------------------------------------------------------
 
 # 3 offline updates (checkpointed at the phase's end), then 2 rounds of 60 env steps (2 envs) with no
@@ -207,11 +235,11 @@ def test_a_flowq_run_goes_end_to_end_and_resumes_exactly_when_killed_mid_way(
     args = _args(run_dir, bc_checkpoint, "eval.enabled=false")
     real_update, calls = Learner.update, {"n": 0}
 
-    def crashing_update(self, batch):
+    def crashing_update(self, batch, **kwargs):
         calls["n"] += 1
         if calls["n"] == 3 + 3 + 2:
             raise RuntimeError("simulated kill")
-        return real_update(self, batch)
+        return real_update(self, batch, **kwargs)
 
     monkeypatch.setattr(Learner, "update", crashing_update)
     with pytest.raises(RuntimeError, match="simulated kill"):
