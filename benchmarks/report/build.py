@@ -24,7 +24,12 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.report import finetune_overview
-from benchmarks.report.finetune import render_critic_bias, render_finetune_cost, render_noise_authorities
+from benchmarks.report.finetune import (
+    render_critic_bias,
+    render_finetune_cost,
+    render_noise_authorities,
+    render_reinflow_cost,
+)
 from benchmarks.report.speed import (
     render_env_throughput,
     render_export_latency,
@@ -194,6 +199,12 @@ GROUPS: dict[str, list[Section]] = {
             "Steering authority of the input noise (what DSRL can move)",
             render_noise_authorities,
             True,
+            produced_by=(*POLICY, "fine-tuning"),
+        ),
+        Section(
+            r"reinflow_cost_.*\.json",
+            "Plan B's cost: PPO over the noisy 2-NFE chain (ReinFlow's route)",
+            render_reinflow_cost,
             produced_by=(*POLICY, "fine-tuning"),
         ),
         Section(

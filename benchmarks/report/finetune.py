@@ -16,6 +16,7 @@ __all__ = [
     "render_finetune_online",
     "render_noise_authorities",
     "render_noise_authority",
+    "render_reinflow_cost",
 ]
 
 #: the parts of an update the bench times, in the table's column order
@@ -255,4 +256,40 @@ def render_critic_bias(data: dict) -> str:
         lines.append(f"| {name}{own}{runs} | {critics} | " + " | ".join(cells) + " |")
     if not data.get("finished", True):
         lines += ["", "The file is partial: its script was still running (or stopped) when it was saved."]
+    return "\n".join(lines)
+
+
+def render_reinflow_cost(data: dict) -> str:
+    """``bench_reinflow_cost``: what PPO over the noisy 2-NFE chain would cost, per million env steps."""
+    ms, per = data["wall_ms"], data["core_hours_per_million_env_steps"]
+    env = data["env"]
+    n = data["envs"]
+    lines = [
+        f"{data['task']}, {_network(data)} policy, one torch thread; PPO minibatch of {data['batch']} "
+        f"chains, {data['epochs']} epochs over every chunk decision ({data['executed_per_chunk']} "
+        "executed actions).",
+        "",
+        "| figure | value |",
+        "|---|---|",
+        f"| 2-NFE chunk / noisy chain, batch 1 (ms) | {ms['chunk_2nfe_b1']:.3g} / {ms['chain_b1']:.3g} |",
+        f"| 2-NFE chunk / noisy chain, batch {n} (ms) | {ms[f'chunk_2nfe_b{n}']:.3g} / "
+        f"{ms[f'chain_b{n}']:.3g} |",
+        f"| PPO minibatch: chain log-likelihood, value MLP, backward, Adam (ms) | "
+        f"{ms['ppo_minibatch']:.3g} |",
+        f"| raw env steps/s: in this process / {n} worker processes | "
+        f"{env['in_process']['raw_steps_per_s']:.0f} / {env['workers']['raw_steps_per_s']:.0f} |",
+        f"| core-hours per million env steps: env / acting / PPO / total | {per['env']:.2f} / "
+        f"{per['acting']:.2f} / {per['ppo']:.2f} / {per['total']:.2f} |",
+        f"| env steps in 2 hours of 2 cores, at most | {data['env_steps_in_2h_of_2_cores_at_most']:,} |",
+    ]
+    published = data["hours_of_2_cores_for_published"]
+    lines += [
+        "",
+        "At this rate ReinFlow's published budgets take "
+        + ", ".join(
+            f"{k.replace('_', ' ')} {data['published_env_steps'][k] / 1e6:g}M env steps: {v:g} h"
+            for k, v in published.items()
+        )
+        + " of 2 cores. The simulator, not the policy, sets the cost.",
+    ]
     return "\n".join(lines)

@@ -489,3 +489,7 @@ def test_reinflow_cost_quick_mode_prices_acting_ppo_and_env_stepping(tmp_path):
     # both cores for 2 hours over the total: the bound the file states
     assert figures["env_steps_in_2h_of_2_cores_at_most"] == pytest.approx(4 * 1e6 / per["total"], rel=0.01)
     assert figures["env"]["workers"]["num_envs"] == 2 and figures["env"]["in_process"]["raw_steps_per_s"] > 0
+    from benchmarks.report.finetune import render_reinflow_cost
+
+    table = render_reinflow_cost(figures)
+    assert f"| {per['env']:.2f} / {per['acting']:.2f} / {per['ppo']:.2f} / {per['total']:.2f} |" in table
