@@ -106,7 +106,7 @@ HEADLINE: dict[str, list[Arm]] = {
         Arm("continued BC, 8,000 updates", *_PICK_MLP_CBC),
         Arm(
             "flow-Q online, alpha 10, 0.5 updates per env step",
-            f"{_PICK_MLP}_flowq_30k.json",
+            f"{_PICK_MLP}_flowq_100k.json",
             "algorithms.flowq",
             _PICK_MLP_CBC,
         ),
