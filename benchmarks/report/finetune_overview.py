@@ -47,6 +47,8 @@ _SQUARE_CBC = ("finetune_online_robosuite_square50_continued_bc_8k.json", "contr
 
 _PICK_MLP = "finetune_online_maniskill_pickcube_mlp_mixed50"
 _PICK_MLP_CBC = (f"{_PICK_MLP}.json", "controls.continued_bc")
+_CAN_MLP = "finetune_online_robosuite_can_mlp_mixed30"
+_CAN_MLP_CBC = (f"{_CAN_MLP}.json", "controls.continued_bc")
 
 #: start -> its arms. Every arm of a start must share the start's run and test figure (checked): rows
 #: from different starts are not comparable. The critic arms' starts are the ones they were measured on.
@@ -110,19 +112,6 @@ HEADLINE: dict[str, list[Arm]] = {
             "algorithms.flowq",
             _PICK_MLP_CBC,
         ),
-        Arm(
-            "flow-Q online, alpha 100, 0.5 updates per env step",
-            f"{_PICK_MLP}_flowq_alpha100_10k.json",
-            "algorithms.flowq",
-            _PICK_MLP_CBC,
-        ),
-    ],
-    "PickCube (25 expert episodes)": [
-        Arm(
-            "DSRL online, SAC alpha 0.01",
-            "finetune_online_maniskill_pickcube_dsrl_alpha0p01.json",
-            "algorithms.dsrl",
-        ),
     ],
     "Can (30 mixed episodes)": [
         Arm(
@@ -153,8 +142,14 @@ HEADLINE: dict[str, list[Arm]] = {
         Arm("FQL online (3,000 offline updates first)", f"{_CAN_C}fql_50k.json", "algorithms.fql"),
         Arm("FQL's TD-only arm, 5,240 updates", f"{_CAN_C}fql_50k.json", "controls.fql_offline"),
     ],
-    "Can (30 mixed episodes, an earlier start)": [
-        Arm("DSRL online", "finetune_online_robosuite_can_mixed30_dsrl.json", "algorithms.dsrl"),
+    "Can (30 mixed episodes, MLP start)": [
+        Arm(
+            "filtered BC online, preset `filtered_bc`",
+            f"{_CAN_MLP}.json",
+            "algorithms.filtered_bc",
+            _CAN_MLP_CBC,
+        ),
+        Arm("continued BC, 8,000 updates", *_CAN_MLP_CBC),
     ],
     "Square (50 scripted episodes)": [
         Arm(
