@@ -107,8 +107,8 @@ HEADLINE: dict[str, list[Arm]] = {
         ),
         Arm("continued BC, 8,000 updates", *_PICK_MLP_CBC),
         Arm(
-            "flow-Q online, alpha 10, 0.5 updates per env step",
-            f"{_PICK_MLP}_flowq_100k.json",
+            "flow-Q online, preset `flowq` (10,000 critic-only offline updates)",
+            f"{_PICK_MLP}_flowq_critic_only.json",
             "algorithms.flowq",
             _PICK_MLP_CBC,
         ),
@@ -319,12 +319,18 @@ _OVERRIDES = {
     "finetune.dsrl.init_alpha": "SAC alpha {}",
     "finetune.ema_power": "EMA power {}",
 }
+#: switches whose "false" is a setting a reader must see (the presets' value is true)
+_SWITCHES = {"offline.critic_only": ("critics alone offline", "actor trained offline too")}
+#: overrides that change what is measured, not what is trained
+_UNNAMED = {"demos.shifted_replays", "offline.eval_every"}
 _REPLAYS = "demos.shifted_replays"
 
 
 def _phrase(override: str) -> str | None:
     key, _, value = override.partition("=")
-    if key == _REPLAYS or value.lower() == "false":
+    if key in _SWITCHES:
+        return _SWITCHES[key][value.lower() != "true"]
+    if key in _UNNAMED or value.lower() == "false":
         return None
     text = _OVERRIDES.get(key)
     if text is None:

@@ -309,6 +309,16 @@ def test_arm_names_say_the_algorithm_how_it_ran_and_its_overrides():
     assert arm_name("algorithms", "dsrl", {}, ["x.y=1", "finetune.filtered_bc.mask_padding=false"]) == (
         "DSRL online, `x.y=1`"
     )
+    # what the offline phase trains is named either way (the flowq preset trains the critics alone);
+    # the validation cadence changes nothing trained and is not named
+    flowq = ["offline.steps=2000", "offline.critic_only=false", "offline.eval_every=5000"]
+    assert arm_name("algorithms", "flowq", {}, flowq) == (
+        "flowq online, 2,000 offline updates first, actor trained offline too"
+    )
+    assert (
+        arm_name("algorithms", "flowq", {}, ["offline.critic_only=true"])
+        == "flowq online, critics alone offline"
+    )
 
 
 def test_the_arms_table_holds_every_arm_of_every_file_grouped_by_start(tmp_path):

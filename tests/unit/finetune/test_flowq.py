@@ -122,7 +122,8 @@ def test_the_preset_composes_validates_and_builds_its_loss():
         "q_scale_floor": 0.1,
         "bc_on_data": False,
     }
-    assert cfg.online.offline_fraction == 0.5 and cfg.offline.steps == 2000
+    assert cfg.online.offline_fraction == 0.5 and cfg.online.updates_per_step == 0.5
+    assert cfg.offline.steps == 10000 and cfg.offline.critic_only is True and cfg.offline.eval_every == 0
     small = OmegaConf.merge(cfg.finetune, {"critic_hidden_dims": [16]})
     loss = get_algorithm("flowq").build(small_flow(), small)
     assert isinstance(loss, FlowQLoss) and loss.critic.num_critics == cfg.finetune.num_critics
