@@ -321,9 +321,9 @@ _OVERRIDES = {
 }
 #: switches whose "false" is a setting a reader must see (the presets' value is true)
 _SWITCHES = {"offline.critic_only": ("critics alone offline", "actor trained offline too")}
-#: overrides that change what is measured, not what is trained
-_UNNAMED = {"demos.shifted_replays", "offline.eval_every"}
 _REPLAYS = "demos.shifted_replays"
+#: overrides not phrased in the list: the replays lead the name; the validation cadence trains nothing
+_UNNAMED = {_REPLAYS, "offline.eval_every"}
 
 
 def _phrase(override: str) -> str | None:
