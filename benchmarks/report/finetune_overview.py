@@ -41,8 +41,6 @@ class Arm:
 _CAN_C = "finetune_online_robosuite_can_mixed30c_"
 _CAN_CBC = (f"{_CAN_C}continued_bc.json", "controls.continued_bc")
 _PICK = "finetune_online_maniskill_pickcube_mixed50b_filtered_bc_an0p02_mask_100k.json"
-_PICK_C = "finetune_online_maniskill_pickcube_mixed50c_"
-_PICK_C_CBC = (f"{_PICK_C}continued_bc.json", "controls.continued_bc")
 _SQUARE_CBC = ("finetune_online_robosuite_square50_continued_bc_8k.json", "controls.continued_bc")
 
 _PICK_MLP = "finetune_online_maniskill_pickcube_mlp_mixed50"
@@ -61,42 +59,6 @@ HEADLINE: dict[str, list[Arm]] = {
             (_PICK, "controls.continued_bc"),
         ),
         Arm("continued BC, 8,000 updates", _PICK, "controls.continued_bc"),
-    ],
-    "PickCube (50 mixed episodes, a later start)": [
-        Arm(
-            "QC, flow frozen, best of 8, online",
-            f"{_PICK_C}qc_frozen_100k.json",
-            "algorithms.qc",
-            _PICK_C_CBC,
-        ),
-        Arm(
-            "QC's TD-only arm, 11,500 updates",
-            f"{_PICK_C}qc_frozen_100k.json",
-            "controls.qc_offline",
-            _PICK_C_CBC,
-        ),
-        Arm(
-            "FQL online (3,000 offline updates first, batch 128)",
-            f"{_PICK_C}fql_100k.json",
-            "algorithms.fql",
-            _PICK_C_CBC,
-        ),
-        Arm(
-            "FQL's TD-only arm, 7,750 updates", f"{_PICK_C}fql_100k.json", "controls.fql_offline", _PICK_C_CBC
-        ),
-        Arm(
-            "DSRL-NA online (0.042 updates per env step)",
-            f"{_PICK_C}dsrl_na_100k.json",
-            "algorithms.dsrl_na",
-            _PICK_C_CBC,
-        ),
-        Arm(
-            "DSRL-NA's TD-only arm, 4,000 updates",
-            f"{_PICK_C}dsrl_na_100k.json",
-            "controls.dsrl_na_offline",
-            _PICK_C_CBC,
-        ),
-        Arm("continued BC, 8,000 updates", *_PICK_C_CBC),
     ],
     "PickCube (50 mixed episodes, MLP start)": [
         Arm(
