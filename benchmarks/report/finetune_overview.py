@@ -112,6 +112,12 @@ HEADLINE: dict[str, list[Arm]] = {
             _CAN_MLP_CBC,
         ),
         Arm("continued BC, 8,000 updates", *_CAN_MLP_CBC),
+        Arm(
+            "flow-Q online, preset `flowq` (10,000 critic-only offline updates)",
+            f"{_CAN_MLP}_flowq.json",
+            "algorithms.flowq",
+            _CAN_MLP_CBC,
+        ),
     ],
     "Square (50 scripted episodes)": [
         Arm(
