@@ -61,7 +61,7 @@ CPU_BUDGET: dict[str, list[str]] = {
     "dsrl_na": ["finetune.batch_size=128", "online.updates_per_step=0.084"],
     "filtered_bc": [],  # an L1 Flow step at batch 64 (~0.1 s), 0.084 per env step
     "filtered_bc_delta": [],  # the same on delta-control tasks
-    "flowq": [],  # its preset is sized to 2 cores (0.5 updates per env step on the MLP network)
+    "flowq": [],  # its preset already makes 0.5 updates per env step, the floor of the anchors'
 }
 
 
