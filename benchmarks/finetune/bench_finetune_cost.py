@@ -22,7 +22,8 @@ next observation: timed warm, as in a run where each stored state's proposals we
 Then env steps/s of one physx_cpu env stepping random actions (raw) against the env driven by each
 algorithm's acting module (one chunk per 8 steps). Ratios are against baselines of the same run.
 
-    python -m benchmarks.finetune.bench_finetune_cost [--task maniskill_pickcube] [--network mlp] [--rounds 5]
+    python -m benchmarks.finetune.bench_finetune_cost [--task maniskill_pickcube] [--network mlp] \\
+        [--rounds 5] [--threads 2]
 
 ``--quick`` runs every part once at a tiny batch, to check the script (not the speed).
 """
@@ -169,7 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batch", type=int, default=256)
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--env-steps", type=int, default=400, help="timed env steps per side")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (the machine is shared)")
+    parser.add_argument(
+        "--threads", type=int, default=1, help="torch threads (1: the machine runs two experiments at once)"
+    )
     parser.add_argument("--out", default=None)
     parser.add_argument("--quick", action="store_true", help="tiny budget: checks the script, not speed")
     args = parse_args(parser, argv)
@@ -189,6 +192,7 @@ def main(argv: list[str] | None = None) -> int:
         "qc_critic_2x256": ("qc", small),
         "fql": ("fql", []),
         "flowq": ("flowq", []),
+        "flowq_critic_2x256": ("flowq", small),
         "dsrl": ("dsrl", []),
         "dsrl_critic_2x256": ("dsrl", small),
         "dsrl_na": ("dsrl_na", []),
@@ -262,6 +266,7 @@ def main(argv: list[str] | None = None) -> int:
         "network": network["name"],
         "network_dims": network["down_dims"] or network["hidden_dims"],
         "batch": args.batch,
+        "threads": args.threads,
         "rounds": args.rounds,
         "quick": args.quick,
         "machine": machine_info("cpu"),
@@ -274,6 +279,7 @@ def main(argv: list[str] | None = None) -> int:
             "qc_critic_2x256_over_qc_update": ratio("qc_critic_2x256", "qc"),
             "fql_over_qc_update": ratio("fql", "qc"),
             "flowq_over_fql_update": ratio("flowq", "fql"),
+            "flowq_critic_2x256_over_flowq_update": ratio("flowq_critic_2x256", "flowq"),
             "dsrl_over_qc_update": ratio("dsrl", "qc"),
             "dsrl_critic_2x256_over_dsrl_update": ratio("dsrl_critic_2x256", "dsrl"),
             "dsrl_na_over_dsrl_update": ratio("dsrl_na", "dsrl"),
@@ -283,7 +289,9 @@ def main(argv: list[str] | None = None) -> int:
         "env": env_row,
     }
     print(result["ratios"])
-    suffix = "" if args.network == "unet" else f"_{args.network}"
+    suffix = ("" if args.network == "unet" else f"_{args.network}") + (
+        "" if args.threads == 1 else f"_threads{args.threads}"
+    )
     out = Path(
         args.out or f"benchmarks/results/finetune_cost_{task.name}{suffix}{'_quick' * args.quick}.json"
     )

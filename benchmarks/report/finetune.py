@@ -35,32 +35,74 @@ def _network(data: dict) -> str:
 
 
 def render_finetune_cost(files: list[tuple[str, dict]]) -> str:
-    """One table of every file's settings (one file per policy network), then acting against the raw
-    simulator, then what each figure decided."""
-    first = files[0][1]
+    """One table of every network's settings at one torch thread, then acting against the raw
+    simulator, then what each figure decided. A file measured at more threads (same network) adds a
+    column of its whole-update time and of its acting rate, rather than repeating every row."""
+    base = [d for _, d in files if d.get("threads", 1) == 1]
+    more = {}  # network -> {threads: data}
+    for _, d in files:
+        if d.get("threads", 1) != 1:
+            more.setdefault(_network(d), {})[d["threads"]] = d
+    extra = sorted({t for by_threads in more.values() for t in by_threads})
+    first = base[0]
     lines = [
-        f"Task {first['task']}, batch {first['batch']}, median wall ms per part of one update over "
-        + ", ".join(f"{d['rounds']} rounds ({_network(d)})" for _, d in files)
-        + " (a part's share can exceed the update's: each is timed alone).",
+        f"Task {first['task']}, batch {first['batch']}, median wall ms per part of one update at one torch "
+        "thread over "
+        + ", ".join(f"{d['rounds']} rounds ({_network(d)})" for d in base)
+        + " (a part's share can exceed the update's: each is timed alone)"
+        + "".join(f"; `update, {t} thr.`: the whole update at {t} threads" for t in extra)
+        + ".",
         "",
-        "| policy network | setting | " + " | ".join(_PARTS) + " | updates/s |",
-        "|---|---|" + "---|" * (len(_PARTS) + 1),
+        "| policy network | setting | "
+        + " | ".join(_PARTS)
+        + "".join(f" | update, {t} thr." for t in extra)
+        + " | updates/s |",
+        "|---|---|" + "---|" * (len(_PARTS) + len(extra) + 1),
     ]
-    for _, data in files:
+
+    def at(data: dict, threads: int, pick):
+        other = more.get(_network(data), {}).get(threads)
+        return None if other is None else pick(other)
+
+    for data in base:
         for name, parts in data["wall_ms"].items():
             cells = " | ".join(_ms(parts.get(p)) for p in _PARTS)
+            cells += "".join(
+                f" | {_ms(at(data, t, lambda o, n=name: o['wall_ms'].get(n, {}).get('update')))}"
+                for t in extra
+            )
             lines.append(f"| {_network(data)} | {name} | {cells} | {data['updates_per_s'][name]:.3g} |")
-    lines += ["", "| policy network | acting module | steps/s | × raw |", "|---|---|---|---|"]
-    for _, data in files:
+    lines += [
+        "",
+        "| policy network | acting module | steps/s | × raw |"
+        + "".join(f" steps/s, {t} thr. |" for t in extra),
+        "|---|---|---|---|" + "---|" * len(extra),
+    ]
+    for data in base:
         env = data["env"]
+
+        def rate(t: int, name: str | None, data: dict = data) -> str:
+            v = at(
+                data,
+                t,
+                lambda o: (
+                    o["env"]["raw_steps_per_s"]
+                    if name is None
+                    else o["env"]["adapters"].get(name, {}).get("steps_per_s")
+                ),
+            )
+            return "–" if v is None else f"{v:.4g}"
+
         lines.append(
             f"| {_network(data)} | raw simulator ({env['setting']}) | {env['raw_steps_per_s']:.4g} | 1 |"
+            + "".join(f" {rate(t, None)} |" for t in extra)
         )
         lines += [
             f"| {_network(data)} | {name} | {a['steps_per_s']:.4g} | {a['over_raw']:.2f} |"
+            + "".join(f" {rate(t, name)} |" for t in extra)
             for name, a in env["adapters"].items()
         ]
-    design = [(data, key, text) for _, data in files for key, text in (data.get("design") or {}).items()]
+    design = [(data, key, text) for data in base for key, text in (data.get("design") or {}).items()]
     if design:
         lines += ["", "What each figure decided:", ""]
         lines += [f"- {_network(data)}, `{key}`: {text}" for data, key, text in design]
