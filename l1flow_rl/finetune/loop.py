@@ -111,7 +111,13 @@ def run_finetune(cfg: DictConfig) -> int:
         if run.resumed is not None:  # before the data and the networks are built
             check_extension(run.resumed["progress"], cfg, str(run.latest))
         job = Finetune(cfg, run, start, algorithm, configs, device)
-        run.begin(job.state, job.load, step=job.step, total=int(cfg.offline.steps) + int(cfg.online.steps))
+        run.begin(
+            job.state,
+            job.load,
+            step=job.step,
+            total=int(cfg.offline.steps) + int(cfg.online.steps),
+            before_latest=job.dump_online,
+        )
         job.validate_start()
         job.offline()
         job.online()
@@ -247,12 +253,18 @@ class Finetune:
         self.progress.update(resumed["progress"])
         self.online_buffer = resumed.get("online_buffer")
 
-    def save(self, dump_online: bool) -> None:
-        """A checkpoint; ``dump_online``: with the online buffer (a folder the checkpoint names)."""
-        if dump_online:
-            name = f"online_buffer_round{self.progress['rounds']}"
+    def dump_online(self) -> None:
+        """The online buffer, dumped to a folder that the next ``latest.pt`` names (the harness calls
+        this before every ``latest.pt``: a stop signal's checkpoint then holds every stored round)."""
+        if self.progress["rounds"] == 0:
+            return  # nothing collected yet
+        name = f"online_buffer_round{self.progress['rounds']}"
+        if name != self.online_buffer:
             self.buffers.dump_online(self.run.ckpt_dir / name)
             self.online_buffer = name
+
+    def save(self) -> None:
+        """``latest.pt``, with the online buffer it names; then the older dumps go."""
         self.run.save()
         for old in self.run.ckpt_dir.glob("online_buffer_round*"):  # latest.pt names another one now
             if old.name != self.online_buffer:
@@ -283,7 +295,7 @@ class Finetune:
                 if off.eval_every and n % off.eval_every == 0:
                     run.validate(self.learner.acting, self.step(), phase="offline", env_steps=0, updates=n)
                 if n == off.steps or (off.checkpoint_every and n % off.checkpoint_every == 0):
-                    self.save(dump_online=False)
+                    self.save()
                 run.step_done(self.step(), metrics, self.learner.acting)  # a stop signal checkpoints here
 
     def online(self) -> None:
@@ -345,7 +357,7 @@ class Finetune:
                 updates=self.updates(),
             )
         if _crossed(on.checkpoint_every, before, progress["env_steps"]) or last:
-            self.save(dump_online=True)
+            self.save()
         run.step_done(self.step(), metrics, self.learner.acting)
 
     def summary(self) -> dict[str, Any]:

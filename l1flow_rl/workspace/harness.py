@@ -234,6 +234,7 @@ class Run:
         self._signal: int | None = None
         self._state_fn: Callable[[], dict[str, Any]] | None = None
         self._step_fn: Callable[[], int] = lambda: 0
+        self._before_latest: Callable[[], None] | None = None
         self._prev_step = 0  # the step of the previous step_done: cadences fire on crossing a multiple
         self._saved_step: int | None = None  # the step latest.pt holds
         self._bar: Any = None
@@ -308,13 +309,16 @@ class Run:
         *,
         step: Callable[[], int],
         total: int | None = None,
+        before_latest: Callable[[], None] | None = None,
     ) -> None:
         """Hand over the job's checkpoint pieces (``state()``; ``load`` restores them) and its
         counter (``step()``), once the job has built everything that draws random numbers. A
         resumed run is restored here (the job's pieces, then every RNG, the history, the
         evaluations); then ``config.yaml`` is written and the logger opened. ``total``: the
-        progress bar's length."""
-        self._state_fn, self._step_fn = state, step
+        progress bar's length. ``before_latest()``: writes what ``latest.pt`` names beside itself
+        (fine-tuning's replay buffer), called before every ``latest.pt``, whatever wrote it (a
+        cadence, the end, a stop signal), so the checkpoint never names an older dump."""
+        self._state_fn, self._step_fn, self._before_latest = state, step, before_latest
         if self.resumed is not None:
             load(self.resumed)
             set_rng_state(self.resumed["rng"])
@@ -489,6 +493,8 @@ class Run:
         run_on_rank0(lambda: self._save(self.latest), "writing the checkpoint")
 
     def _save(self, path: Path) -> None:
+        if path == self.latest and self._before_latest is not None:
+            self._before_latest()
         state = self.state()
         self._check_state(state)
         save_checkpoint(path, state)

@@ -6,6 +6,8 @@ and resumes exactly when killed mid-way."""
 from __future__ import annotations
 
 import copy
+import os
+import signal
 
 import pytest
 import torch
@@ -257,6 +259,42 @@ def test_a_flowq_run_goes_end_to_end_and_resumes_exactly_when_killed_mid_way(
         assert all(torch.equal(v, resumed["optimizer"]["state"][k][n]) for n, v in state.items())
     strip = lambda rows: [{k: v for k, v in r.items() if not k.endswith("_per_s")} for r in rows]  # noqa: E731
     assert strip(resumed["records"]["rounds"]) == strip(straight["records"]["rounds"])
+
+
+def test_a_stop_signal_between_checkpoints_saves_the_online_buffer_with_the_weights(
+    tmp_path, bc_checkpoint, monkeypatch
+):
+    # 3 rounds, checkpointed only at the end; SIGTERM in round 2's updates: the signal's latest.pt
+    # is the only one, and it must name a buffer dump holding both rounds (before: it named none, so
+    # the resumed run sampled from an empty online buffer)
+    def args(run_dir):
+        return _args(
+            run_dir, bc_checkpoint, "eval.enabled=false", "online.steps=180", "online.checkpoint_every=0"
+        )
+
+    assert main(args(tmp_path / "straight")) == 0
+    straight = load_checkpoint(tmp_path / "straight" / "checkpoints" / "latest.pt")
+    real_update, calls = Learner.update, {"n": 0}
+
+    def signalled_update(self, batch, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 3 + 3 + 1:  # 3 offline updates, 3 in round 1, the first of round 2
+            os.kill(os.getpid(), signal.SIGTERM)  # the harness checkpoints after this round
+        return real_update(self, batch, **kwargs)
+
+    monkeypatch.setattr(Learner, "update", signalled_update)
+    assert main(args(tmp_path / "run")) == 128 + signal.SIGTERM
+    monkeypatch.setattr(Learner, "update", real_update)
+    stopped = load_checkpoint(tmp_path / "run" / "checkpoints" / "latest.pt")
+    assert stopped["progress"]["env_steps"] == 120 and stopped["progress"]["rounds"] == 2
+    assert stopped["online_buffer"] == "online_buffer_round2"
+    assert main([*args(tmp_path / "run"), "resume=true"]) == 0
+    resumed = load_checkpoint(tmp_path / "run" / "checkpoints" / "latest.pt")
+    assert resumed["progress"] == straight["progress"]
+    for key in ("model", "loss", "buffers"):
+        assert _differing(resumed[key], straight[key]) == [], key
+    dumps = sorted(p.name for p in (tmp_path / "run" / "checkpoints").glob("online_buffer_round*"))
+    assert dumps == ["online_buffer_round3"]  # the signal's dump went once latest.pt named another
 
 
 def test_a_relaunched_grid_skips_a_finished_flowq_run_and_refuses_one_of_another_setting(
