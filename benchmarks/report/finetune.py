@@ -60,17 +60,14 @@ def render_finetune_cost(files: list[tuple[str, dict]]) -> str:
         "|---|---|" + "---|" * (len(_PARTS) + len(extra) + 1),
     ]
 
-    def at(data: dict, threads: int, pick):
-        other = more.get(_network(data), {}).get(threads)
-        return None if other is None else pick(other)
+    def fmt(value: float | None) -> str:
+        return "–" if value is None else f"{value:.4g}"
 
     for data in base:
+        others = [more.get(_network(data), {}).get(t) for t in extra]  # None where not measured
         for name, parts in data["wall_ms"].items():
             cells = " | ".join(_ms(parts.get(p)) for p in _PARTS)
-            cells += "".join(
-                f" | {_ms(at(data, t, lambda o, n=name: o['wall_ms'].get(n, {}).get('update')))}"
-                for t in extra
-            )
+            cells += "".join(f" | {_ms(o and o['wall_ms'].get(name, {}).get('update'))}" for o in others)
             lines.append(f"| {_network(data)} | {name} | {cells} | {data['updates_per_s'][name]:.3g} |")
     lines += [
         "",
@@ -80,26 +77,16 @@ def render_finetune_cost(files: list[tuple[str, dict]]) -> str:
     ]
     for data in base:
         env = data["env"]
-
-        def rate(t: int, name: str | None, data: dict = data) -> str:
-            v = at(
-                data,
-                t,
-                lambda o: (
-                    o["env"]["raw_steps_per_s"]
-                    if name is None
-                    else o["env"]["adapters"].get(name, {}).get("steps_per_s")
-                ),
-            )
-            return "–" if v is None else f"{v:.4g}"
-
+        others = [more.get(_network(data), {}).get(t) for t in extra]
         lines.append(
             f"| {_network(data)} | raw simulator ({env['setting']}) | {env['raw_steps_per_s']:.4g} | 1 |"
-            + "".join(f" {rate(t, None)} |" for t in extra)
+            + "".join(f" {fmt(o and o['env']['raw_steps_per_s'])} |" for o in others)
         )
         lines += [
             f"| {_network(data)} | {name} | {a['steps_per_s']:.4g} | {a['over_raw']:.2f} |"
-            + "".join(f" {rate(t, name)} |" for t in extra)
+            + "".join(
+                f" {fmt(o and o['env']['adapters'].get(name, {}).get('steps_per_s'))} |" for o in others
+            )
             for name, a in env["adapters"].items()
         ]
     design = [(data, key, text) for data in base for key, text in (data.get("design") or {}).items()]
