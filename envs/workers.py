@@ -22,6 +22,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from types import FrameType
 
+import torch
 from torchrl.envs import ParallelEnv, SerialEnv
 
 __all__ = [
@@ -243,7 +244,18 @@ class _ClosesQuietlyUnstarted:
 
 
 class ParallelWorkerEnv(_ClosesQuietlyUnstarted, ParallelEnv):
-    """TorchRL's ``ParallelEnv``, closable before its first reset."""
+    """TorchRL's ``ParallelEnv``, closable before its first reset, that leaves this process's torch
+    threads as they were.
+
+    TorchRL lowers the main process to ``threads - workers`` (so one thread on two cores with two
+    workers), sized for a learner that updates while the workers step. Our loops act and update in
+    turn, so the update keeps the threads the user set. An explicit ``num_threads`` still wins.
+    """
+
+    def _start_workers(self) -> None:
+        if self.num_threads is None:
+            self.num_threads = torch.get_num_threads()
+        super()._start_workers()
 
 
 class SerialWorkerEnv(_ClosesQuietlyUnstarted, SerialEnv):

@@ -1,6 +1,7 @@
 """Scripts that make CPU worker envs without the ``if __name__ == "__main__":`` guard are told so,
 instead of getting a ConnectionResetError from a worker that died while starting; a SIGTERM to the
-whole process group leaves the workers to the main process."""
+whole process group leaves the workers to the main process; the main process keeps its torch
+threads."""
 
 from __future__ import annotations
 
@@ -141,6 +142,26 @@ def test_making_worker_envs_leaves_the_main_processs_signal_handlers_alone(task,
     finally:
         for sig, handler in ours.items():
             signal.signal(sig, handler)
+
+
+def test_worker_envs_leave_the_learners_torch_threads_as_the_user_set_them():
+    # TorchRL's ParallelEnv drops the main process to threads - workers: on two cores with two
+    # workers the update that follows each round of acting ran on one thread
+    pytest.importorskip("gym_pusht")
+    import torch
+    from l1flow_rl.envs import make_env
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        env = make_env("pusht_image", num_envs=2, backend="parallel")
+        try:
+            env.reset()
+            assert torch.get_num_threads() == 2
+        finally:
+            env.close()
+    finally:
+        torch.set_num_threads(before)
 
 
 STOPPABLE = """\
