@@ -63,11 +63,15 @@ def render_finetune_cost(files: list[tuple[str, dict]]) -> str:
     def fmt(value: float | None) -> str:
         return "–" if value is None else f"{value:.4g}"
 
+    def others(data: dict) -> list[dict | None]:
+        """The same network's files at the extra thread counts (None where not measured)."""
+        return [more.get(_network(data), {}).get(t) for t in extra]
+
     for data in base:
-        others = [more.get(_network(data), {}).get(t) for t in extra]  # None where not measured
+        at_threads = others(data)
         for name, parts in data["wall_ms"].items():
             cells = " | ".join(_ms(parts.get(p)) for p in _PARTS)
-            cells += "".join(f" | {_ms(o and o['wall_ms'].get(name, {}).get('update'))}" for o in others)
+            cells += "".join(f" | {_ms(o and o['wall_ms'].get(name, {}).get('update'))}" for o in at_threads)
             lines.append(f"| {_network(data)} | {name} | {cells} | {data['updates_per_s'][name]:.3g} |")
     lines += [
         "",
@@ -77,15 +81,15 @@ def render_finetune_cost(files: list[tuple[str, dict]]) -> str:
     ]
     for data in base:
         env = data["env"]
-        others = [more.get(_network(data), {}).get(t) for t in extra]
+        at_threads = others(data)
         lines.append(
             f"| {_network(data)} | raw simulator ({env['setting']}) | {env['raw_steps_per_s']:.4g} | 1 |"
-            + "".join(f" {fmt(o and o['env']['raw_steps_per_s'])} |" for o in others)
+            + "".join(f" {fmt(o and o['env']['raw_steps_per_s'])} |" for o in at_threads)
         )
         lines += [
             f"| {_network(data)} | {name} | {a['steps_per_s']:.4g} | {a['over_raw']:.2f} |"
             + "".join(
-                f" {fmt(o and o['env']['adapters'].get(name, {}).get('steps_per_s'))} |" for o in others
+                f" {fmt(o and o['env']['adapters'].get(name, {}).get('steps_per_s'))} |" for o in at_threads
             )
             for name, a in env["adapters"].items()
         ]
