@@ -13,7 +13,8 @@ override of the same key. Finished runs (their
 ``eval.json``) are read back, interrupted ones resume from their last checkpoint, and finished ones
 shorter than asked (``--steps``, ``--continued-bc-updates``) are extended to it (``resume=true``: the
 run goes on as the longer run would have; its earlier report stays as ``eval_step<N>.json``);
-``--collect-only`` only reads.
+``--collect-only`` only reads. The file's ``start`` block fingerprints the checkpoint (its weights and the
+episodes it trained on): seeds and controls compare only against the same start.
 
 ``--continued-bc-updates N`` adds the control that separates "online data" from "more updates": per
 seed, N updates of the flow's own L1 Flow loss on the demonstrations alone, from the same checkpoint
@@ -35,10 +36,13 @@ updates plus its online ones; the online runs' ``summary`` records both) to comp
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import subprocess
 import sys
 from pathlib import Path
+
+import torch
 
 from benchmarks.lib.common import machine_info, parse_args, save_results
 from benchmarks.lib.stats import mean_and_spread
@@ -217,6 +221,40 @@ def read_control(run_dir: Path) -> dict:
         "cpu_seconds": summary.get("cpu_seconds"),
         "data_cost": data_cost(summary.get("dataset")),
     }
+
+
+def _digest(tensors: dict) -> str:
+    """sha256 over named tensors in key order: names, dtypes, shapes and bytes."""
+    h = hashlib.sha256()
+    for key in sorted(tensors, key=str):
+        t = tensors[key].detach().cpu().contiguous()
+        h.update(f"{key}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.view(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    return h.hexdigest()
+
+
+def start_fingerprint(checkpoint: str | Path) -> dict:
+    """What tells a start from one remade by its own command: sha256 of its weights (model and EMA)
+    and of the episodes it trained on as training loads them (their content: an HDF5 file's bytes
+    change with its write times). A remake on another machine or commit can differ in either; the
+    file's controls and seeds compare only against the same start."""
+    from omegaconf import OmegaConf
+
+    from l1flow_rl.config import TaskConfig
+    from l1flow_rl.workspace.checkpoint import load_checkpoint
+    from l1flow_rl.workspace.dataset import load_task_episodes
+
+    state = load_checkpoint(checkpoint)
+    weights = {f"model.{k}": v for k, v in state["model"].items()}
+    weights.update({f"ema.{k}": v for k, v in (state.get("ema") or {}).items()})
+    dataset = state.get("dataset")
+    episodes = None
+    if dataset and Path(dataset).exists():
+        cfg = OmegaConf.create(state["config"])
+        cfg.task = OmegaConf.merge(OmegaConf.structured(TaskConfig), cfg.task)  # as the run composed it
+        data = load_task_episodes(cfg, Path(dataset))
+        episodes = _digest({k: data.get(k) for k in data.keys(True, True)})
+    return {"weights_sha256": _digest(weights), "dataset": dataset, "episodes_sha256": episodes}
 
 
 def read_run(run_dir: Path) -> dict:
@@ -473,6 +511,7 @@ def main(argv: list[str] | None = None) -> int:
         "eval_every": args.eval_every,
         "val_episodes": args.val_episodes,
         "test_episodes": args.test_episodes,
+        "start": start_fingerprint(args.checkpoint),
         "machine": machine_info("cpu"),
         "controls": controls,
         "algorithms": algorithms,

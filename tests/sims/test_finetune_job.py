@@ -450,3 +450,20 @@ def test_an_fql_run_trains_its_one_step_actor_and_its_checkpoint_evaluates(tmp_p
     assert main([*args, f"run_dir={out}"]) == 0
     sampler = json.loads((out / "eval.json").read_text())["sampler"]
     assert sampler["name"] == "OneStepActor" and sampler["nfe"] == 1.0 and sampler["trained_with"] is None
+
+
+def test_the_online_bench_tells_a_start_from_a_remade_one_by_its_weights(tmp_path, bc_checkpoint):
+    """bench_finetune_online records its start's fingerprint: a start remade by its own command on
+    another machine can differ, and its controls and seeds then compare against another start."""
+    from benchmarks.finetune.bench_finetune_online import start_fingerprint
+    from l1flow_rl.workspace.checkpoint import load_checkpoint, save_checkpoint
+
+    first = start_fingerprint(bc_checkpoint)
+    assert first == start_fingerprint(bc_checkpoint)
+    assert len(first["weights_sha256"]) == 64 and len(first["episodes_sha256"]) == 64
+    state = load_checkpoint(bc_checkpoint)
+    name = sorted(state["model"])[0]
+    state["model"][name] = state["model"][name] + 1.0  # one tensor differs; the episodes are the same
+    remade = start_fingerprint(save_checkpoint(tmp_path / "remade.pt", state))
+    assert remade["weights_sha256"] != first["weights_sha256"]
+    assert remade["episodes_sha256"] == first["episodes_sha256"]
