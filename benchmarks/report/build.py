@@ -300,9 +300,13 @@ def _summary_parts(results: Path, doc: Path, level: str, overview_table: bool) -
     finetune = finetune_overview.overview_table(results) if overview_table else None
     if finetune:  # the headline arms of every fine-tuning start, before each file's own section
         parts += [f"{level} Fine-tuning at a glance", "", finetune, ""]
-        for start, path in zip(finetune_overview.HEADLINE, finetune_overview.figure_paths(results)):
-            if path.is_file():
-                parts += [f"![Fine-tuning: {start}]({link(path, doc)})", ""]
+        figures = [
+            f"![Fine-tuning: {start}]({link(path, doc)})"
+            for start, path in zip(finetune_overview.HEADLINE, finetune_overview.figure_paths(results))
+            if path.is_file()
+        ]
+        if figures:  # one paragraph: the starts' figures side by side where the page is wide enough
+            parts += [*figures, ""]
     return parts
 
 
