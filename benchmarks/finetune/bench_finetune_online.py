@@ -240,7 +240,6 @@ def start_fingerprint(checkpoint: str | Path) -> dict:
     file's controls and seeds compare only against the same start."""
     from omegaconf import OmegaConf
 
-    from l1flow_rl.config import TaskConfig
     from l1flow_rl.workspace.checkpoint import load_checkpoint
     from l1flow_rl.workspace.dataset import load_task_episodes
 
@@ -250,9 +249,7 @@ def start_fingerprint(checkpoint: str | Path) -> dict:
     dataset = state.get("dataset")
     episodes = None
     if dataset and Path(dataset).exists():
-        cfg = OmegaConf.create(state["config"])
-        cfg.task = OmegaConf.merge(OmegaConf.structured(TaskConfig), cfg.task)  # as the run composed it
-        data = load_task_episodes(cfg, Path(dataset))
+        data = load_task_episodes(OmegaConf.create(state["config"]), Path(dataset))
         episodes = _digest({k: data.get(k) for k in data.keys(True, True)})
     return {"weights_sha256": _digest(weights), "dataset": dataset, "episodes_sha256": episodes}
 

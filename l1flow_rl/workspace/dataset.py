@@ -21,6 +21,7 @@ from l1flow_rl.data import (
 )
 from l1flow_rl.data.loading import open_episode_file
 from l1flow_rl.envs import get_simulator
+from l1flow_rl.evaluation.plan import task_from
 from l1flow_rl.experts import ensure_demos
 from l1flow_rl.experts.options import demo_options
 
@@ -58,7 +59,7 @@ def load_task_episodes(cfg: DictConfig, dataset: Path) -> TensorDictBase:
     demonstrations instead of in RAM."""
     # the entries of the task's observation (robosuite: state_keys, cameras), where its simulator says
     select = get_simulator(cfg.task.simulator).reader_options
-    options = dict(select(OmegaConf.to_object(cfg.task))) if select is not None else {}
+    options = dict(select(task_from(cfg.task))) if select is not None else {}  # a checkpoint's plain node too
     # Any format, any simulator: the recorded mode comes from the reader's metadata, not from a
     # reader option that only some formats take.
     with open_episode_file(dataset, **options) as reader:
