@@ -305,8 +305,8 @@ def _summary_parts(results: Path, doc: Path, level: str, overview_table: bool) -
             for start, path in zip(finetune_overview.HEADLINE, finetune_overview.figure_paths(results))
             if path.is_file()
         ]
-        if figures:  # one paragraph: the starts' figures side by side where the page is wide enough
-            parts += [*figures, ""]
+        if figures:  # one line: the starts' figures side by side where the page is wide enough
+            parts += [" ".join(figures), ""]
     return parts
 
 

@@ -47,6 +47,7 @@ _PICK_MLP = "finetune_online_maniskill_pickcube_mlp_mixed50"
 _PICK_MLP_CBC = (f"{_PICK_MLP}.json", "controls.continued_bc")
 _CAN_MLP = "finetune_online_robosuite_can_mlp_mixed30"
 _CAN_MLP_CBC = (f"{_CAN_MLP}.json", "controls.continued_bc")
+_CAN_MLP_R = f"{_CAN_MLP}_remade"
 
 #: start -> its arms. Every arm of a start must share the start's run and test figure (checked): rows
 #: from different starts are not comparable. The critic arms' starts are the ones they were measured on.
@@ -117,6 +118,14 @@ HEADLINE: dict[str, list[Arm]] = {
             f"{_CAN_MLP}_flowq.json",
             "algorithms.flowq",
             _CAN_MLP_CBC,
+        ),
+    ],
+    "Can (30 mixed episodes, MLP start remade)": [
+        Arm("filtered BC online, preset `filtered_bc`", f"{_CAN_MLP_R}.json", "algorithms.filtered_bc"),
+        Arm(
+            "flow-Q online, preset `flowq` (10,000 critic-only offline updates)",
+            f"{_CAN_MLP_R}_flowq.json",
+            "algorithms.flowq",
         ),
     ],
     "Square (50 scripted episodes)": [
