@@ -48,6 +48,7 @@ _PICK_MLP_CBC = (f"{_PICK_MLP}.json", "controls.continued_bc")
 _CAN_MLP = "finetune_online_robosuite_can_mlp_mixed30"
 _CAN_MLP_CBC = (f"{_CAN_MLP}.json", "controls.continued_bc")
 _CAN_MLP_R = f"{_CAN_MLP}_remade"
+_CAN_MLP_R_CBC = (f"{_CAN_MLP_R}.json", "controls.continued_bc")
 
 #: start -> its arms. Every arm of a start must share the start's run and test figure (checked): rows
 #: from different starts are not comparable. The critic arms' starts are the ones they were measured on.
@@ -121,11 +122,18 @@ HEADLINE: dict[str, list[Arm]] = {
         ),
     ],
     "Can (30 mixed episodes, MLP start remade)": [
-        Arm("filtered BC online, preset `filtered_bc`", f"{_CAN_MLP_R}.json", "algorithms.filtered_bc"),
+        Arm(
+            "filtered BC online, preset `filtered_bc`",
+            f"{_CAN_MLP_R}.json",
+            "algorithms.filtered_bc",
+            _CAN_MLP_R_CBC,
+        ),
+        Arm("continued BC, 8,000 updates", *_CAN_MLP_R_CBC),
         Arm(
             "flow-Q online, preset `flowq` (10,000 critic-only offline updates)",
             f"{_CAN_MLP_R}_flowq.json",
             "algorithms.flowq",
+            _CAN_MLP_R_CBC,
         ),
     ],
     "Square (50 scripted episodes)": [
