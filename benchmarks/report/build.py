@@ -267,18 +267,23 @@ def _status(section: Section, files: list[tuple[Path, dict]], repo: Path) -> Sec
 def _section(section: Section, files: list[tuple[Path, dict]], doc: Path, repo: Path = REPO) -> list[str]:
     """One published table under its heading: whether its code changed since it was measured (its
     status), then each source file, when and where it was measured."""
-    parts = [f"### {section.title}", "", _status(section, files, repo).line, ""]
+    status = _status(section, files, repo).line
+    parts = [f"### {section.title}", ""]
     if section.merged:
-        parts += [_render(section.render, [(p.name, d) for p, d in files]), ""]
+        parts += [status, "", _render(section.render, [(p.name, d) for p, d in files]), ""]
         parts += ["Sources:", ""]
         parts += [f"{i}. {source_line(p, d, doc)}" for i, (p, d) in enumerate(files, 1)] + [""]
         parts += [f"`{p.name}`: {d['note']}\n" for p, d in files if d.get("note")]
         return parts
+    if len(files) > 1:
+        parts += [status, ""]
     for path, data in files:
         body = _render(section.render, data)
         if data.get("note"):  # a file's own words after its table, whatever renders it
             body += f"\n\n{data['note']}"
-        parts += [f"Source: {source_line(path, data, doc)}", "", body, ""]
+        source = f"Source: {source_line(path, data, doc)}"
+        # one source: its status and its line share a paragraph
+        parts += [f"{status} {source}" if len(files) == 1 else source, "", body, ""]
         parts += [line for plot in _figures(path) for line in (f"![{plot.stem}]({link(plot, doc)})", "")]
     return parts
 

@@ -353,3 +353,22 @@ def test_the_saved_results_make_one_section_per_table_and_leave_no_file_out():
     assert len(text.splitlines()) <= 900
     assert "## Other saved results" not in text  # every saved file is in a published table
     assert text.count("### Online fine-tuning") == 1
+
+
+def test_a_one_file_section_puts_its_status_and_source_in_one_paragraph_and_several_files_list_theirs(
+    tmp_path,
+):
+    from benchmarks.report.build import Section, _section
+
+    section = Section("x*.json", "X", render=lambda data: f"| v |\n|---|\n| {data['v']} |")
+    files = [(tmp_path / "x1.json", {"v": 1, "note": "its own words"}), (tmp_path / "x2.json", {"v": 2})]
+    one = _section(section, files[:1], tmp_path / "RESULTS.md", repo=tmp_path)
+    assert one[:2] == ["### X", ""]
+    assert one[2].startswith("Status: unverified") and " Source: [`x1.json`](x1.json)" in one[2]
+    assert one[3:5] == ["", "| v |\n|---|\n| 1 |\n\nits own words"]
+    two = _section(section, files, tmp_path / "RESULTS.md", repo=tmp_path)
+    assert two[2].startswith("Status: unverified") and "Source" not in two[2]
+    assert [line for line in two if line.startswith("Source: ")] == [
+        line for line in two if "[`x1.json`]" in line or "[`x2.json`]" in line
+    ]
+    assert len([line for line in two if line.startswith("Source: ")]) == 2
