@@ -275,15 +275,15 @@ def _section(section: Section, files: list[tuple[Path, dict]], doc: Path, repo: 
         parts += [f"{i}. {source_line(p, d, doc)}" for i, (p, d) in enumerate(files, 1)] + [""]
         parts += [f"`{p.name}`: {d['note']}\n" for p, d in files if d.get("note")]
         return parts
-    if len(files) > 1:
+    # one source: its status and its line share a paragraph; several: the status heads them all
+    lead = f"{status} " if len(files) == 1 else ""
+    if not lead:
         parts += [status, ""]
     for path, data in files:
         body = _render(section.render, data)
         if data.get("note"):  # a file's own words after its table, whatever renders it
             body += f"\n\n{data['note']}"
-        source = f"Source: {source_line(path, data, doc)}"
-        # one source: its status and its line share a paragraph
-        parts += [f"{status} {source}" if len(files) == 1 else source, "", body, ""]
+        parts += [f"{lead}Source: {source_line(path, data, doc)}", "", body, ""]
         parts += [line for plot in _figures(path) for line in (f"![{plot.stem}]({link(plot, doc)})", "")]
     return parts
 
