@@ -123,9 +123,12 @@ def offline_only_cmd(algorithm: str, seed: int, args, run_dir: Path) -> list[str
 
 
 def offline_only_settings(algorithm: str, args) -> list[str]:
-    """The TD-only arm's budget and overrides, less the keys its own length sets."""
-    keys = {item.partition("=")[0] for item in offline_length(1)}
-    return [o for o in budget(algorithm, args.override) if o.partition("=")[0] not in keys]
+    """The TD-only arm's budget and overrides, less the keys its own length sets, with its actor
+    learning: a preset (flow-Q's) or ``--override`` whose offline phase trains the critics alone
+    would leave the arm's acting flow exactly at the start."""
+    keys = {item.partition("=")[0] for item in offline_length(1)} | {"offline.critic_only"}
+    kept = [o for o in budget(algorithm, args.override) if o.partition("=")[0] not in keys]
+    return [*kept, "offline.critic_only=false"]
 
 
 def offline_arm(name: str) -> bool:

@@ -244,6 +244,13 @@ def test_the_td_only_arm_is_the_algorithms_preset_and_budget_on_the_demonstratio
     args.override = [*args.override, "offline.steps=3000", "online.steps=50000"]
     cfg = compose_config(offline_only_cmd("qc", 0, args, tmp_path / "run")[5:], command="finetune")
     assert (cfg.offline.steps, cfg.online.steps, cfg.online.updates_per_step) == (6500, 0, 0.1)
+    # flow-Q's preset trains the critics alone offline (as would an --override): its TD-only arm's
+    # actor learns, or the arm would test the start itself
+    args.override = ["offline.critic_only=true"]
+    for algorithm in ("flowq", "qc"):
+        cfg = compose_config(offline_only_cmd(algorithm, 0, args, tmp_path / "run")[5:], command="finetune")
+        assert cfg.offline.critic_only is False and cfg.offline.steps == 6500
+    assert compose_config(["finetune=flowq"], command="finetune").offline.critic_only is True
     # asked at 6,500 updates: a finished run of 1,625 is extended, one of 6,500 is read
     run = tmp_path / "run"
     run.mkdir()
