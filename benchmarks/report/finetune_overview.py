@@ -148,6 +148,11 @@ HEADLINE: dict[str, list[Arm]] = {
     ],
     "Square (50 scripted episodes, MLP start)": [
         Arm("filtered BC online, preset `filtered_bc`", f"{_SQUARE_MLP}.json", "algorithms.filtered_bc"),
+        Arm(
+            "flow-Q online, preset `flowq` (10,000 critic-only offline updates)",
+            f"{_SQUARE_MLP}_flowq.json",
+            "algorithms.flowq",
+        ),
     ],
 }
 
