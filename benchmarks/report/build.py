@@ -103,7 +103,7 @@ POLICY = ("the policy",)
 #: RESULTS.md's groups in order, each a heading and its sections
 GROUPS: dict[str, list[Section]] = {
     "Success, convergence and ablations": [
-        Section(r"main_job\.json", "Main job", render_main_job, produced_by=(*TRAINED, "the experts")),
+        Section(r"main_job(_mlp)?\.json", "Main job", render_main_job, produced_by=(*TRAINED, "the experts")),
         Section(
             r"success_.*\.json",
             "Success and convergence, every task and method",
@@ -282,7 +282,9 @@ def _section(section: Section, files: list[tuple[Path, dict]], doc: Path, repo: 
     for path, data in files:
         body = _render(section.render, data)
         if data.get("note"):  # a file's own words after its table, whatever renders it
-            body += f"\n\n{data['note']}"
+            # after prose they continue its paragraph; after a table they need their own
+            body = body.rstrip()
+            body += ("\n\n" if body.endswith("|") else " ") + data["note"]
         parts += [f"{lead}Source: {source_line(path, data, doc)}", "", body, ""]
         parts += [line for plot in _figures(path) for line in (f"![{plot.stem}]({link(plot, doc)})", "")]
     return parts

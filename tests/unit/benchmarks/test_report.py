@@ -372,3 +372,46 @@ def test_a_one_file_section_puts_its_status_and_source_in_one_paragraph_and_seve
         line for line in two if "[`x1.json`]" in line or "[`x2.json`]" in line
     ]
     assert len([line for line in two if line.startswith("Source: ")]) == 2
+
+
+def test_a_files_note_continues_the_prose_that_ends_its_block_and_follows_a_table_on_its_own(tmp_path):
+    from benchmarks.report.build import Section, _section
+
+    prose = Section("x*.json", "X", render=lambda data: f"| v |\n|---|\n| {data['v']} |\n\nThe verdict.")
+    files = [(tmp_path / "x1.json", {"v": 1, "note": "Its own words."})]
+    assert _section(prose, files, tmp_path / "RESULTS.md", repo=tmp_path)[4] == (
+        "| v |\n|---|\n| 1 |\n\nThe verdict. Its own words."
+    )
+    table = Section("x*.json", "X", render=lambda data: f"| v |\n|---|\n| {data['v']} |\n")
+    assert (
+        _section(table, files, tmp_path / "RESULTS.md", repo=tmp_path)[4]
+        == "| v |\n|---|\n| 1 |\n\nIts own words."
+    )
+
+
+def test_the_main_jobs_block_names_the_command_a_variant_ran():
+    from benchmarks.report.success import render_main_job
+
+    run = {
+        "seed": 0,
+        "wall_seconds": 140.0,
+        "wall_over_budget": 140 / 480,
+        "success_once": 0.92,
+        "eval_episodes": 100,
+    }
+    d = {
+        "runs": [run],
+        "budget_seconds": 480,
+        "meets_targets": False,
+        "success_once_mean": 0.92,
+        "success_once_min": 0.92,
+        "wall_seconds_max": 140.0,
+        "target_success_once": 0.95,
+        "target_episodes": 100,
+        "overrides": ["eval.episodes=100"],
+    }
+    assert "ManiSkill PushCube (state), the plain `l1flow-rl train`, each run" in render_main_job(d)
+    d["overrides"] = ["eval.episodes=100", "network=mlp"]
+    text = render_main_job(d)
+    assert "ManiSkill PushCube (state), `l1flow-rl train network=mlp`, each run" in text
+    assert "the job does not meet its targets" in text
