@@ -273,7 +273,8 @@ def _section(section: Section, files: list[tuple[Path, dict]], doc: Path, repo: 
         parts += [status, "", _render(section.render, [(p.name, d) for p, d in files]), ""]
         parts += ["Sources:", ""]
         parts += [f"{i}. {source_line(p, d, doc)}" for i, (p, d) in enumerate(files, 1)] + [""]
-        parts += [f"`{p.name}`: {d['note']}\n" for p, d in files if d.get("note")]
+        notes = [f"- `{p.name}`: {d['note']}" for p, d in files if d.get("note")]
+        parts += [*notes, ""] if notes else []  # one list, not a paragraph per file
         return parts
     # one source: its status and its line share a paragraph; several: the status heads them all
     lead = f"{status} " if len(files) == 1 else ""

@@ -50,6 +50,7 @@ _CAN_MLP_CBC = (f"{_CAN_MLP}.json", "controls.continued_bc")
 _CAN_MLP_R = f"{_CAN_MLP}_remade"
 _CAN_MLP_R_CBC = (f"{_CAN_MLP_R}.json", "controls.continued_bc")
 _SQUARE_MLP = "finetune_online_robosuite_square50_mlp"
+_SQUARE_MLP_CBC = (f"{_SQUARE_MLP}.json", "controls.continued_bc")
 
 #: start -> its arms. Every arm of a start must share the start's run and test figure (checked): rows
 #: from different starts are not comparable. The critic arms' starts are the ones they were measured on.
@@ -147,11 +148,18 @@ HEADLINE: dict[str, list[Arm]] = {
         Arm("continued BC, 8,000 updates", *_SQUARE_CBC),
     ],
     "Square (50 scripted episodes, MLP start)": [
-        Arm("filtered BC online, preset `filtered_bc`", f"{_SQUARE_MLP}.json", "algorithms.filtered_bc"),
+        Arm(
+            "filtered BC online, preset `filtered_bc`",
+            f"{_SQUARE_MLP}.json",
+            "algorithms.filtered_bc",
+            _SQUARE_MLP_CBC,
+        ),
+        Arm("continued BC, 8,000 updates", *_SQUARE_MLP_CBC),
         Arm(
             "flow-Q online, preset `flowq` (10,000 critic-only offline updates)",
             f"{_SQUARE_MLP}_flowq.json",
             "algorithms.flowq",
+            _SQUARE_MLP_CBC,
         ),
     ],
 }

@@ -415,3 +415,19 @@ def test_the_main_jobs_block_names_the_command_a_variant_ran():
     text = render_main_job(d)
     assert "ManiSkill PushCube (state), `l1flow-rl train network=mlp`, each run" in text
     assert "the job does not meet its targets" in text
+
+
+def test_a_merged_sections_notes_are_one_list_after_its_sources(tmp_path):
+    from benchmarks.report.build import Section, _section
+
+    section = Section("x*.json", "X", render=lambda files: "| n |\n|---|\n| 2 |", merged=True)
+    files = [
+        (tmp_path / "x1.json", {"note": "first words"}),
+        (tmp_path / "x2.json", {}),
+        (tmp_path / "x3.json", {"note": "third words"}),
+    ]
+    parts = _section(section, files, tmp_path / "RESULTS.md", repo=tmp_path)
+    assert parts[-3:] == ["- `x1.json`: first words", "- `x3.json`: third words", ""]
+    assert parts[-4] == "" and parts[-5].startswith("3. ")  # the numbered sources, then the list
+    no_notes = _section(section, files[1:2], tmp_path / "RESULTS.md", repo=tmp_path)
+    assert no_notes[-2].startswith("1. ") and no_notes[-1] == ""
