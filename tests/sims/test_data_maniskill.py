@@ -182,3 +182,36 @@ def test_rgb_demos_import_as_state_plus_image(tmp_path):
     batch = make_chunk_buffer(eps, batch_size=8).sample()
     assert batch["observation", "rgb"].shape == (8, 2, 3, 128, 128)
     assert batch["observation", "state"].shape == (8, 2, eps["observation", "state"].shape[-1])
+
+
+@pytest.mark.parametrize(
+    ("seed", "deepest"),
+    [
+        (0, True),  # cube at x = 0.0: the full 5 cm push is direct
+        (19, False),  # cube at x = 0.094: a 5 cm push plans 800 steps through a wrist reconfiguration
+        (65, False),  # cube at x = 0.095: no screw path for 2-5 cm
+    ],
+)
+def test_pushcube_solution_pushes_as_deep_as_a_direct_push_reaches(seed, deepest):
+    import gymnasium as gym
+    import mani_skill.envs  # noqa: F401  (registers the tasks)
+
+    from l1flow_rl.experts.maniskill.solutions import MAX_DIRECT_PUSH_STEPS, PUSH_FURTHER, solution_for
+
+    env = gym.make("PushCube-v1", obs_mode="none", control_mode="pd_joint_pos", sim_backend="cpu")
+    try:
+        result = solution_for("PushCube-v1")(env, seed=seed)
+        assert result != -1, f"seed {seed}: no plan"
+        assert bool(result[-1]["success"].item())
+        base = env.unwrapped
+        # the approach takes at most 40 steps, the push at most MAX_DIRECT_PUSH_STEPS
+        assert int(base.elapsed_steps.max()) <= 40 + MAX_DIRECT_PUSH_STEPS
+        cube_to_goal = float(base.goal_region.pose.p[0, 0] - base.obj.pose.p[0, 0])
+    finally:
+        env.close()
+    # the hand stops (0.12 - depth) short of the goal's centre with the cube 4 cm ahead of it
+    full_depth = 0.12 - PUSH_FURTHER[0] - 0.04
+    if deepest:
+        assert cube_to_goal == pytest.approx(full_depth, abs=0.01)
+    else:
+        assert full_depth + 0.005 < cube_to_goal < 0.1
