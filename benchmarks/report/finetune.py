@@ -140,7 +140,7 @@ def render_finetune_online(data: dict) -> str:
     lines = [
         f"Task {data['task']}, from `{data['checkpoint']}`; validation {data['val_episodes']} episodes every "
         f"{data['eval_every']:,} env steps, test {data['test_episodes']} episodes of the best-validated "
-        "policy (the start competes, so no reported policy is below its own validation).",
+        "policy (the start is kept unless a model validates more than one standard error above it).",
         "",
         "| arm | seeds | test success_once (mean, min-max) | validation at env steps (mean) | "
         "env steps/s acting | updates/s |",

@@ -292,7 +292,8 @@ def overview_table(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> 
             )
     note = (
         "Test: 100 episodes per seed on the test seeds, of the best-validated weights (a run keeps its "
-        "start when nothing validates above it); differences in points of the mean over seeds. A data "
+        "start unless a model validates more than one standard error above it); differences in points of "
+        "the mean over seeds. A data "
         "arm's env steps are those its replays took. Files (`finetune_online_<name>.json`): "
         + ", ".join(f"{i} `{_name(f)}`" for i, f in enumerate(files, 1))
         + "."
@@ -487,7 +488,8 @@ def overview_figures(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -
                 ax.errorbar(
                     [r["env_steps"]],
                     [r["mean"]],
-                    yerr=[[r["mean"] - lo], [hi - r["mean"]]],
+                    # (equal seeds: the float mean may sit a rounding error outside its min and max)
+                    yerr=[[max(r["mean"] - lo, 0.0)], [max(hi - r["mean"], 0.0)]],
                     fmt="D",
                     ms=7,
                     color=color,

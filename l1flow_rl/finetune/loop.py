@@ -106,7 +106,7 @@ def run_finetune(cfg: DictConfig) -> int:
         checkpoint_every=0,  # checkpointed below: an online checkpoint also dumps the buffer
         eval_every=0,
         history_keys=("loss_qvalue", "q_data_mean", "target_mean", "td_error_abs", "env_steps"),
-        ties="earliest",  # the start is validated first: no reported policy falls below it
+        rule="start",  # the start is validated first: no reported policy falls below it
     ) as run:
         if run.resumed is not None:  # before the data and the networks are built
             check_extension(run.resumed["progress"], cfg, str(run.latest))

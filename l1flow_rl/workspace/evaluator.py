@@ -4,6 +4,7 @@ evaluation never touches the training RNG."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -15,11 +16,51 @@ from l1flow_rl.evaluation import evaluate
 from l1flow_rl.evaluation.plan import resolve_plan, task_from
 from l1flow_rl.workspace.logging import log_evaluation
 
-__all__ = ["TIE_RULES", "PeriodicEvaluator"]
+__all__ = ["SELECTION_RULES", "PeriodicEvaluator", "choose_evaluation"]
 
-#: which of equally validated models is chosen: training keeps the latest (with a cosine LR and an
-#: EMA a later checkpoint is the better prior), fine-tuning the earliest (its start wins ties)
-TIE_RULES = ("earliest", "latest")
+#: which validated model is chosen, the highest validation figure with, of equals, the
+#: - ``"latest"``: latest (training: with a cosine LR and an EMA a later checkpoint is the better prior);
+#: - ``"earliest"``: earliest;
+#: - ``"start"``: earliest, but the first evaluation is a start (fine-tuning's BC policy) that a later
+#:   model replaces only when it validates more than one standard error above it: a lead within the
+#:   validation's noise is no evidence of a better policy (the measurement: docs/finetune.md).
+SELECTION_RULES = ("earliest", "latest", "start")
+
+
+def _binomial_standard_error(p: float, n: int) -> float:
+    return math.sqrt(p * (1 - p) / n) if n and 0 <= p <= 1 else 0.0
+
+
+def _result_standard_error(result: dict[str, Any], headline: str) -> float | None:
+    """An evaluation's standard error of ``headline``: binomial for a rate, else the one its 95 %
+    interval implies; None when it has neither."""
+    if (result.get("ci_method") or {}).get(headline) == "wilson":
+        return _binomial_standard_error(float(result[headline]), int(result.get("episodes") or 0))
+    low_high = (result.get("ci95") or {}).get(headline)
+    if low_high is None or None in low_high:
+        return None
+    return (low_high[1] - low_high[0]) / (2 * 1.959964)
+
+
+def _standard_error(row: dict[str, Any], headline: str) -> float:
+    """A validation row's standard error: recorded when it ran, else (a row without one) binomial."""
+    if row.get("standard_error") is not None:
+        return float(row["standard_error"])
+    return _binomial_standard_error(float(row[headline]), int(row.get("episodes") or 0))
+
+
+def choose_evaluation(val: Sequence[dict[str, Any]], headline: str, rule: str) -> dict[str, Any]:
+    """The chosen one of the validation rows ``val`` (in order) under ``rule`` (:data:`SELECTION_RULES`)."""
+    if rule not in SELECTION_RULES:
+        raise ValueError(f"rule={rule!r}; expected one of {SELECTION_RULES}")
+    if not val:
+        raise ValueError("no validation evaluation to choose from")
+    # max keeps the first of equal values: the reversed list gives the latest of them
+    best = lambda rows: max(rows if rule != "latest" else rows[::-1], key=lambda e: e[headline])  # noqa: E731
+    if rule != "start" or len(val) == 1:
+        return best(list(val))
+    start, later = val[0], best(list(val[1:]))
+    return later if later[headline] > start[headline] + _standard_error(start, headline) else start
 
 
 class PeriodicEvaluator:
@@ -78,15 +119,16 @@ class PeriodicEvaluator:
         )
         row = {k: result[k] for k in keys if k in result}
         row[self.headline] = result[self.headline]
+        row["standard_error"] = _result_standard_error(result, self.headline)  # the "start" rule's margin
         return row
 
     def selection(
-        self, evals: Sequence[dict[str, Any]], final_step: int, ties: str = "earliest"
+        self, evals: Sequence[dict[str, Any]], final_step: int, rule: str = "earliest"
     ) -> dict[str, Any]:
-        """Which model the test figures belong to: the best validation evaluation (of equals, the
-        ``ties`` one: ``"earliest"`` or ``"latest"``), or the final model when no validation ran."""
-        if ties not in TIE_RULES:
-            raise ValueError(f"ties={ties!r}; expected one of {TIE_RULES}")
+        """Which model the test figures belong to: the validation evaluation that ``rule``
+        (:data:`SELECTION_RULES`) chooses, or the final model when no validation ran."""
+        if rule not in SELECTION_RULES:
+            raise ValueError(f"rule={rule!r}; expected one of {SELECTION_RULES}")
         val = [e for e in evals if e.get("split", "val") == "val"]
         if not val:
             return {
@@ -94,12 +136,16 @@ class PeriodicEvaluator:
                 "step": final_step,
                 "rule": "final model: no validation during training (train.eval_every=0)",
             }
-        # max keeps the first of equal values: the reversed list gives the latest of them
-        best = max(val if ties == "earliest" else val[::-1], key=lambda e: e[self.headline])
+        best = choose_evaluation(val, self.headline, rule)
+        ties = "latest" if rule == "latest" else "earliest"
+        text = f"highest validation {self.headline}, the {ties} of equals"
+        if rule == "start":
+            margin = _standard_error(val[0], self.headline)
+            text += f"; the start (the first) kept unless beaten by over {margin:.3f}, its standard error"
         return {
             "split": "val",
             "step": best["step"],
-            "rule": f"highest validation {self.headline}, the {ties} of equals",
+            "rule": text,
             "sampler": self.cfg.eval.get("val_sampler") or self.cfg.policy.sampler,
             "value": best[self.headline],
             "seeds": {"first": self.plan.val_seed, "episodes": self.plan.val_episodes},

@@ -84,7 +84,7 @@ from l1flow_rl.workspace.checkpoint import (
     set_rng_state,
 )
 from l1flow_rl.workspace.distributed import run_on_every_rank, run_on_rank0
-from l1flow_rl.workspace.evaluator import TIE_RULES, PeriodicEvaluator
+from l1flow_rl.workspace.evaluator import SELECTION_RULES, PeriodicEvaluator, choose_evaluation
 from l1flow_rl.workspace.logging import make_logger
 from l1flow_rl.workspace.machine import machine_info
 from l1flow_rl.workspace.provenance import run_provenance, source_commit
@@ -179,8 +179,9 @@ class Run:
             unit (0 turns checkpoints or validation during training off).
         history_keys: the metrics kept in ``history.json`` beside ``step`` (all are logged).
         seed: every RNG's seed (default ``cfg.seed`` + the rank: each rank its own sample stream).
-        ties: which of equally validated models ``best.pt`` keeps (``TIE_RULES``): ``"latest"`` for
-            training, ``"earliest"`` where the first evaluation is a start that must win ties.
+        rule: which validated model ``best.pt`` keeps (``SELECTION_RULES``): ``"latest"`` of equals
+            for training, ``"start"`` where the first evaluation is a start that a later model must
+            beat by more than the validation's standard error.
     """
 
     def __init__(
@@ -196,11 +197,11 @@ class Run:
         eval_every: int = 0,
         history_keys: tuple[str, ...] = ("loss", "lr"),
         seed: int | None = None,
-        ties: str = "earliest",
+        rule: str = "earliest",
     ) -> None:
-        if ties not in TIE_RULES:
-            raise ValueError(f"ties={ties!r}; expected one of {TIE_RULES}")
-        self.ties = ties
+        if rule not in SELECTION_RULES:
+            raise ValueError(f"rule={rule!r}; expected one of {SELECTION_RULES}")
+        self.rule = rule
         self.cfg, self.job, self.device, self.may_change = cfg, job, device, tuple(may_change)
         self.rank = dist.get_rank() if dist.is_available() and dist.is_initialized() else 0
         self.seed = cfg.seed + self.rank if seed is None else seed
@@ -483,7 +484,8 @@ class Run:
         self.evals.append({**self.evaluator.history_row(result), **row})
         value, name = result[self.evaluator.headline], self.evaluator.headline
         self._bar.write(f"step {step}: validation {name}={value:.3f} over {result['episodes']} episodes")
-        if value > self.best or (self.ties == "latest" and value == self.best):
+        val = [e for e in self.evals if e.get("split", "val") == "val"]
+        if choose_evaluation(val, name, self.rule) is val[-1]:
             self.best = value
             self._save(self.best_path)
         return result
@@ -551,7 +553,7 @@ class Run:
     def _report(self, actor: Any, summary: dict[str, Any], load_chosen: Any, plot: Any) -> dict[str, Any]:
         step, ev = self.step, self.evaluator
         if ev is not None:
-            selection = ev.selection(self.evals, step, ties=self.ties)
+            selection = ev.selection(self.evals, step, rule=self.rule)
             chosen = actor
             if selection["step"] != step:
                 load = load_chosen or (lambda p: load_actor(p, use_ema=True, map_location=self.device)[0])

@@ -73,7 +73,7 @@ def run_train(cfg: DictConfig) -> int:
         eval_every=tcfg.eval_every,
         # of equally validated checkpoints the latest: a short validation can tie an under-trained
         # early checkpoint with later ones that test far better, and ties are common at 20 episodes
-        ties="latest",
+        rule="latest",
     )
     with harness as run:
         with run.phase("demo"):

@@ -194,12 +194,12 @@ def test_selection_takes_the_earliest_or_latest_best_validation_and_the_final_mo
         {"step": 30, "split": "val", "success_once": 0.8},
         {"step": 30, "split": "test", "success_once": 1.0},  # test figures never choose
     ]
-    chosen = evaluator.selection(evals, final_step=30)  # fine-tuning's rule: its start wins ties
+    chosen = evaluator.selection(evals, final_step=30)  # of equals the earliest
     assert (chosen["split"], chosen["step"], chosen["value"]) == ("val", 20, 0.8)
-    latest = evaluator.selection(evals, final_step=30, ties="latest")  # training's rule
+    latest = evaluator.selection(evals, final_step=30, rule="latest")  # training's rule
     assert (latest["step"], latest["value"]) == (30, 0.8) and latest["rule"].endswith("latest of equals")
-    with pytest.raises(ValueError, match="ties='last'"):
-        evaluator.selection(evals, final_step=30, ties="last")
+    with pytest.raises(ValueError, match="rule='last'"):
+        evaluator.selection(evals, final_step=30, rule="last")
     assert chosen["seeds"] == {"first": 10_000, "episodes": 5}
     assert [e["step"] for e in chosen["evaluations"]] == [10, 20, 30]
     final = evaluator.selection([], final_step=30)

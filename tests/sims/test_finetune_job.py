@@ -104,6 +104,9 @@ def test_qc_validates_the_start_then_fine_tunes_offline_and_online(finetuned):
     history = json.loads((finetuned / "history.json").read_text())
     evals = history["evals"]
     assert evals[0]["phase"] == "start" and evals[0]["step"] == 0  # the BC start competes
+    # ... and a later model must beat it by more than its standard error (the "start" rule)
+    assert evals[0]["standard_error"] >= 0
+    assert "the start (the first) kept unless" in result["selection"]["rule"]
     rounds = history["rounds"]
     assert [r["env_steps"] for r in rounds] == [40, 80] and [r["policy"] for r in rounds] == [
         "start",
