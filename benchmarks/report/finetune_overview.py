@@ -137,6 +137,7 @@ HEADLINE: dict[str, list[Arm]] = {
             "algorithms.flowq",
             _CAN_MLP_R_CBC,
         ),
+        Arm("flow-Q's TD-only arm, 57,500 updates", f"{_CAN_MLP_R}_flowq.json", "controls.flowq_offline"),
     ],
     "Square (50 scripted episodes)": [
         Arm(
