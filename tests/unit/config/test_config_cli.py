@@ -35,8 +35,8 @@ def test_a_task_brings_its_default_budget_and_the_command_line_wins():
     default = compose_config([])
     rgb = compose_config(["task=maniskill_pushcube_rgb"])
     assert (rgb.train.steps, rgb.train.batch_size) == (2000, 32)  # train=cpu_rgb, the task's own budget
-    # the main job (maniskill_pushcube): train=cpu_short, cpu's budget with 2,000 steps
-    assert (default.train.steps, default.train.batch_size, default.train.eval_every) == (2000, 64, 500)
+    # the main job (maniskill_pushcube): train=cpu_pushcube, cpu's budget with 3,000 steps
+    assert (default.train.steps, default.train.batch_size, default.train.eval_every) == (3000, 64, 500)
     assert compose_config(["task=maniskill_pickcube"]).train.steps == 2500  # train=cpu
     assert compose_config(["task=maniskill_pushcube_rgb", "train=gpu_rgb"]).train.steps == 30000
     assert compose_config(["task=maniskill_pushcube_rgb", "train.steps=7"]).train.steps == 7
