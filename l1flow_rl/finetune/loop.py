@@ -3,8 +3,8 @@
     l1flow-rl finetune finetune=qc checkpoint=runs/bc/checkpoints/best.pt task=maniskill_pickcube \\
         online.steps=100000 eval.episodes=100 online.eval_every=10000
 
-1. The BC start is validated first: it competes for ``best.pt``, so a run never reports a policy
-   below its start.
+1. The BC start is validated first and holds ``best.pt`` until a later model validates more than its
+   standard error above it (``rule="start"``): a lead within the validation's noise never replaces it.
 2. Offline (``offline.steps``): updates on the demonstrations' chunk windows (QC, FQL).
 3. Online: rounds of ``online.frames_per_round`` env steps from ``online.num_envs`` worker envs (a
    TorchRL collector); the first ``online.warmup_steps`` are the BC start's, then each round is
@@ -12,7 +12,7 @@
    take ``online.offline_fraction`` of their windows from the demonstrations (TorchRL's
    ``OfflineToOnlineReplayBuffer``). Each round logs env steps/s, updates/s, the critic
    diagnostics and the collected episodes' success; validation every ``online.eval_every`` env steps.
-4. The chosen policy (best validation, the start included) on the test seeds: ``eval.json``.
+4. The chosen policy (under the "start" rule above) on the test seeds: ``eval.json``.
 
 The loop talks to the algorithm through :class:`~l1flow_rl.finetune.base.Learner` (what it updates,
 acts with and saves) and :class:`~l1flow_rl.finetune.base.FinetuneAlgorithm` (the data it needs).
@@ -106,7 +106,7 @@ def run_finetune(cfg: DictConfig) -> int:
         checkpoint_every=0,  # checkpointed below: an online checkpoint also dumps the buffer
         eval_every=0,
         history_keys=("loss_qvalue", "q_data_mean", "target_mean", "td_error_abs", "env_steps"),
-        rule="start",  # the start is validated first: no reported policy falls below it
+        rule="start",  # the start is validated first; a later model must beat it beyond its noise
     ) as run:
         if run.resumed is not None:  # before the data and the networks are built
             check_extension(run.resumed["progress"], cfg, str(run.latest))
@@ -272,7 +272,7 @@ class Finetune:
 
     # -- the loop -----------------------------------------------------------------------------------
     def validate_start(self) -> None:
-        """The start competes for ``best.pt``: a run never reports a policy below it."""
+        """The start competes for ``best.pt`` (``rule="start"``: kept unless clearly beaten)."""
         if self.progress["started"]:
             return
         self.describe_start = True
