@@ -21,15 +21,10 @@ from typing import Any
 
 from benchmarks.finetune.bench_finetune_online import aggregate, seeded_control
 from benchmarks.lib.common import save_results
-from l1flow_rl.workspace.evaluator import choose_evaluation
+from l1flow_rl.workspace.evaluator import choose_evaluation, rule_text
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
 HEADLINE = "success_once"
-#: what the re-chosen selection says of itself
-RULE = (
-    "highest validation success_once, the earliest of equals; the start (the first) kept unless beaten "
-    "by over {:.3f}, its standard error (re-chosen from the stored validations)"
-)
 
 
 def _rechosen(record: dict[str, Any], start_test: dict[str, Any]) -> bool:
@@ -52,10 +47,10 @@ def _rechosen(record: dict[str, Any], start_test: dict[str, Any]) -> bool:
         },
         "rule_then": selection.get("rule"),
     }
-    margin = (p * (1 - p) / episodes) ** 0.5
+    rule = f"{rule_text(rows, HEADLINE, 'start')} (re-chosen from the stored validations)"
     record["test"] = {
         **{k: start_test.get(k) for k in ("success_once", "success_at_end", "episodes", "ci95")},
-        "selection": {**selection, "step": 0, "value": p, "rule": RULE.format(margin)},
+        "selection": {**selection, "step": 0, "value": p, "rule": rule},
     }
     return True
 
@@ -69,9 +64,10 @@ def rechoose(data: dict[str, Any]) -> list[str]:
     moved = []
     for name, block in (data.get("algorithms") or {}).items():
         runs = block.get("runs") or {}
-        moved += [f"{name} seed {s}" for s, r in runs.items() if _rechosen(r, start)]
-        if runs:
+        changed = [s for s, r in runs.items() if _rechosen(r, start)]
+        if changed:
             block["aggregate"] = aggregate({int(s): r for s, r in runs.items()})
+            moved += [f"{name} seed {s}" for s in changed]
     for name, block in controls.items():
         seeds = block.get("seeds") or {}
         if name == "bc_start" or name.endswith("_last") or not seeds:

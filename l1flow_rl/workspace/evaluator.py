@@ -16,7 +16,7 @@ from l1flow_rl.evaluation import evaluate
 from l1flow_rl.evaluation.plan import resolve_plan, task_from
 from l1flow_rl.workspace.logging import log_evaluation
 
-__all__ = ["SELECTION_RULES", "PeriodicEvaluator", "choose_evaluation"]
+__all__ = ["SELECTION_RULES", "PeriodicEvaluator", "choose_evaluation", "rule_text"]
 
 #: which validated model is chosen, the highest validation figure with, of equals, the
 #: - ``"latest"``: latest (training: with a cosine LR and an EMA a later checkpoint is the better prior);
@@ -47,6 +47,16 @@ def _standard_error(row: dict[str, Any], headline: str) -> float:
     if row.get("standard_error") is not None:
         return float(row["standard_error"])
     return _binomial_standard_error(float(row[headline]), int(row.get("episodes") or 0))
+
+
+def rule_text(val: Sequence[dict[str, Any]], headline: str, rule: str) -> str:
+    """How a selection under ``rule`` over the validation rows ``val`` describes itself."""
+    ties = "latest" if rule == "latest" else "earliest"
+    text = f"highest validation {headline}, the {ties} of equals"
+    if rule == "start":
+        margin = _standard_error(val[0], headline)
+        text += f"; the start (the first) kept unless beaten by over {margin:.3f}, its standard error"
+    return text
 
 
 def choose_evaluation(val: Sequence[dict[str, Any]], headline: str, rule: str) -> dict[str, Any]:
@@ -137,15 +147,10 @@ class PeriodicEvaluator:
                 "rule": "final model: no validation during training (train.eval_every=0)",
             }
         best = choose_evaluation(val, self.headline, rule)
-        ties = "latest" if rule == "latest" else "earliest"
-        text = f"highest validation {self.headline}, the {ties} of equals"
-        if rule == "start":
-            margin = _standard_error(val[0], self.headline)
-            text += f"; the start (the first) kept unless beaten by over {margin:.3f}, its standard error"
         return {
             "split": "val",
             "step": best["step"],
-            "rule": text,
+            "rule": rule_text(val, self.headline, rule),
             "sampler": self.cfg.eval.get("val_sampler") or self.cfg.policy.sampler,
             "value": best[self.headline],
             "seeds": {"first": self.plan.val_seed, "episodes": self.plan.val_episodes},
