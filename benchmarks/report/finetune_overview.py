@@ -138,6 +138,12 @@ HEADLINE: dict[str, list[Arm]] = {
             _CAN_MLP_R_CBC,
         ),
         Arm("flow-Q's TD-only arm, 57,500 updates", f"{_CAN_MLP_R}_flowq.json", "controls.flowq_offline"),
+        Arm(
+            "flow-Q online, critics 2 x 256 (the preset's: 4 x 512)",
+            f"{_CAN_MLP_R}_flowq_critic2x256.json",
+            "algorithms.flowq",
+            _CAN_MLP_R_CBC,
+        ),
     ],
     "Square (50 scripted episodes)": [
         Arm(
