@@ -144,6 +144,7 @@ HEADLINE: dict[str, list[Arm]] = {
             "algorithms.flowq",
             _CAN_MLP_R_CBC,
         ),
+        Arm("QC online, best of 8", f"{_CAN_MLP_R}_qc8.json", "algorithms.qc", _CAN_MLP_R_CBC),
     ],
     "Square (50 scripted episodes)": [
         Arm(
