@@ -272,10 +272,12 @@ def _section(section: Section, files: list[tuple[Path, dict]], doc: Path, repo: 
     if section.merged:
         parts += [status, "", _render(section.render, [(p.name, d) for p, d in files]), ""]
         parts += ["Sources:", ""]
-        parts += [f"{i}. {source_line(p, d, doc)}" for i, (p, d) in enumerate(files, 1)] + [""]
-        notes = [f"- `{p.name}`: {d['note']}" for p, d in files if d.get("note")]
-        parts += [*notes, ""] if notes else []  # one list, not a paragraph per file
-        return parts
+        # a file's own words follow its source line: one numbered item per file, its note beside it
+        parts += [
+            f"{i}. {source_line(p, d, doc)}" + (f" {d['note']}" if d.get("note") else "")
+            for i, (p, d) in enumerate(files, 1)
+        ]
+        return [*parts, ""]
     # one source: its status and its line share a paragraph; several: the status heads them all
     lead = f"{status} " if len(files) == 1 else ""
     if not lead:

@@ -144,6 +144,12 @@ HEADLINE: dict[str, list[Arm]] = {
             "algorithms.flowq",
             _CAN_MLP_R_CBC,
         ),
+        Arm(
+            "flow-Q online, critics 2 x 256, 1 update per env step (the preset's: 0.5)",
+            f"{_CAN_MLP_R}_flowq_critic2x256_utd1.json",
+            "algorithms.flowq",
+            _CAN_MLP_R_CBC,
+        ),
         Arm("QC online, best of 8", f"{_CAN_MLP_R}_qc8.json", "algorithms.qc", _CAN_MLP_R_CBC),
     ],
     "Square (50 scripted episodes)": [

@@ -417,7 +417,7 @@ def test_the_main_jobs_block_names_the_command_a_variant_ran():
     assert "the job does not meet its targets" in text
 
 
-def test_a_merged_sections_notes_are_one_list_after_its_sources(tmp_path):
+def test_a_merged_sections_notes_follow_their_own_source_lines(tmp_path):
     from benchmarks.report.build import Section, _section
 
     section = Section("x*.json", "X", render=lambda files: "| n |\n|---|\n| 2 |", merged=True)
@@ -427,7 +427,9 @@ def test_a_merged_sections_notes_are_one_list_after_its_sources(tmp_path):
         (tmp_path / "x3.json", {"note": "third words"}),
     ]
     parts = _section(section, files, tmp_path / "RESULTS.md", repo=tmp_path)
-    assert parts[-3:] == ["- `x1.json`: first words", "- `x3.json`: third words", ""]
-    assert parts[-4] == "" and parts[-5].startswith("3. ")  # the numbered sources, then the list
+    assert parts[-1] == "" and [p[:3] for p in parts[-4:-1]] == ["1. ", "2. ", "3. "]
+    assert parts[-4].startswith("1. [`x1.json`]") and parts[-4].endswith(" first words")
+    assert parts[-2].endswith(" third words") and "words" not in parts[-3]
+    assert not any(p.startswith("- `") for p in parts)  # no second list of the same files
     no_notes = _section(section, files[1:2], tmp_path / "RESULTS.md", repo=tmp_path)
     assert no_notes[-2].startswith("1. ") and no_notes[-1] == ""
