@@ -122,6 +122,12 @@ HEADLINE: dict[str, list[Arm]] = {
             "algorithms.flowq",
             _CAN_MLP_CBC,
         ),
+        Arm(
+            "flow-Q online, critics 2 x 256, 1 update per env step (the preset's: 0.5)",
+            f"{_CAN_MLP}_flowq_critic2x256_utd1.json",
+            "algorithms.flowq",
+            _CAN_MLP_CBC,
+        ),
     ],
     "Can (30 mixed episodes, MLP start remade)": [
         Arm(
