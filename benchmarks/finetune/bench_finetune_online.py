@@ -45,7 +45,7 @@ from pathlib import Path
 import torch
 
 from benchmarks.lib.common import machine_info, parse_args, save_results
-from benchmarks.lib.stats import mean_and_spread
+from benchmarks.lib.stats import mean_and_spread, runs_aggregate
 from benchmarks.report.finetune import render_finetune_online
 
 #: budget departures from the presets on 2 shared CPU cores, with the cost figure that forces each
@@ -322,31 +322,6 @@ def read_run(run_dir: Path) -> dict:
     }
 
 
-def aggregate(per_seed: dict[int, dict]) -> dict:
-    """Mean and spread over seeds: the test figure, and validation success at each env step that every
-    seed reached."""
-    tests = [
-        r["test"]["success_once"] for r in per_seed.values() if r["test"].get("success_once") is not None
-    ]
-    curves = [{v["env_steps"]: v["success_once"] for v in r["validation"]} for r in per_seed.values()]
-    common = sorted(set.intersection(*(set(c) for c in curves))) if curves else []
-    return {
-        "seeds": sorted(per_seed),
-        "test_mean": sum(tests) / len(tests) if tests else None,
-        "test_min": min(tests) if tests else None,
-        "test_max": max(tests) if tests else None,
-        "curve": [
-            {
-                "env_steps": x,
-                "mean": sum(c[x] for c in curves) / len(curves),
-                "min": min(c[x] for c in curves),
-                "max": max(c[x] for c in curves),
-            }
-            for x in common
-        ],
-    }
-
-
 def plot(data: dict, out: Path) -> None:
     """Validation success against env steps per algorithm (mean over seeds, min-max band), the control
     arms' test figures as horizontal lines."""
@@ -500,7 +475,7 @@ def main(argv: list[str] | None = None) -> int:
             algorithms[a] = {
                 "budget_overrides": budget(a, args.override),
                 "runs": {str(s): r for s, r in runs.items()},
-                "aggregate": aggregate(runs),
+                "aggregate": runs_aggregate(runs),
             }
     out = Path(args.out or f"benchmarks/results/finetune_online_{args.task}.json")
     data = {
@@ -516,7 +491,7 @@ def main(argv: list[str] | None = None) -> int:
         "controls": controls,
         "algorithms": algorithms,
     }
-    from benchmarks.finetune.rechoose import rechoose  # it reuses this module's aggregate: imported here
+    from benchmarks.finetune.rechoose import rechoose  # it imports this module: imported here
 
     rechoose(data)  # runs measured under the earlier checkpoint rule are read under today's
     save_results(out, data)

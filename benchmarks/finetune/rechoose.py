@@ -19,8 +19,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from benchmarks.finetune.bench_finetune_online import aggregate, seeded_control
+from benchmarks.finetune.bench_finetune_online import seeded_control
 from benchmarks.lib.common import save_results
+from benchmarks.lib.stats import runs_aggregate
 from l1flow_rl.workspace.evaluator import choose_evaluation, rule_text
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
@@ -66,7 +67,7 @@ def rechoose(data: dict[str, Any]) -> list[str]:
         runs = block.get("runs") or {}
         changed = [s for s, r in runs.items() if _rechosen(r, start)]
         if changed:
-            block["aggregate"] = aggregate({int(s): r for s, r in runs.items()})
+            block["aggregate"] = runs_aggregate({int(s): r for s, r in runs.items()})
             moved += [f"{name} seed {s}" for s in changed]
     for name, block in controls.items():
         seeds = block.get("seeds") or {}

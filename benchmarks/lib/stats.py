@@ -7,7 +7,13 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["convergence_steps", "mean_and_spread", "steps_to_fraction_of_best", "still_rising"]
+__all__ = [
+    "convergence_steps",
+    "mean_and_spread",
+    "runs_aggregate",
+    "steps_to_fraction_of_best",
+    "still_rising",
+]
 
 
 def mean_and_spread(values: Sequence[float]) -> dict[str, float]:
@@ -49,3 +55,28 @@ def convergence_steps(block: dict[str, Any]) -> list[tuple[int, bool]]:
     else:
         steps = [(s, False) for s in block.get("steps_to_90pct_of_best") or []]
     return [(s, rising) for s, rising in steps if s]
+
+
+def runs_aggregate(per_seed: dict[int, dict]) -> dict:
+    """A fine-tuning arm's runs (seed -> its record in a ``finetune_online_*.json``) over seeds: the test
+    figure, and validation success at each env step that every seed reached."""
+    tests = [
+        r["test"]["success_once"] for r in per_seed.values() if r["test"].get("success_once") is not None
+    ]
+    curves = [{v["env_steps"]: v["success_once"] for v in r["validation"]} for r in per_seed.values()]
+    common = sorted(set.intersection(*(set(c) for c in curves))) if curves else []
+    return {
+        "seeds": sorted(per_seed),
+        "test_mean": sum(tests) / len(tests) if tests else None,
+        "test_min": min(tests) if tests else None,
+        "test_max": max(tests) if tests else None,
+        "curve": [
+            {
+                "env_steps": x,
+                "mean": sum(c[x] for c in curves) / len(curves),
+                "min": min(c[x] for c in curves),
+                "max": max(c[x] for c in curves),
+            }
+            for x in common
+        ],
+    }

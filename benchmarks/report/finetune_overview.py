@@ -14,9 +14,12 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from benchmarks.lib.stats import runs_aggregate
 
 __all__ = ["HEADLINE", "Arm", "arm_name", "arms_table", "figure_paths", "overview_figures", "overview_table"]
 
@@ -26,12 +29,18 @@ class Arm:
     """One row: ``key`` is ``algorithms.<name>`` (an online arm) or ``controls.<name>`` (an arm without
     env steps of its own: continued BC, a TD-only arm, or a data method whose env steps are its
     ``data_cost``) of results file ``file``; ``baseline`` the (file, key) of the continued-BC control it
-    is measured against, if any."""
+    is measured against, if any; ``more`` further files of the same command run for other seeds (an
+    online arm): their runs join this arm's, checked to share its start and settings."""
 
     label: str
     file: str
     key: str
     baseline: tuple[str, str] | None = None
+    more: tuple[str, ...] = ()
+
+    @property
+    def files(self) -> tuple[str, ...]:
+        return (self.file, *self.more)
 
     @property
     def online(self) -> bool:
@@ -193,6 +202,49 @@ def _block(data: dict, key: str, file: str) -> dict:
     return block
 
 
+def _start_of(data: dict) -> tuple[str, float]:
+    start = data["controls"]["bc_start"]
+    return start["run_dir"], start["test"]["success_once"]
+
+
+def _pooled(arm: Arm, load: Callable[[str], dict]) -> tuple[dict, dict | None]:
+    """``arm``'s block with the runs of every file it names (one file: as saved), and its last weights'
+    control (``<name>_last``, seeds joined; None unless every file has one)."""
+    data = load(arm.file)
+    block = _block(data, arm.key, arm.file)
+    group, _, name = arm.key.partition(".")
+    lasts = [data.get("controls", {}).get(f"{name}_last")]
+    if not arm.more:
+        return block, lasts[0]
+    if group != "algorithms":
+        raise ValueError(f"{arm.label!r}: only an online arm joins the runs of several files")
+    runs = dict(block["runs"])
+    for other_name in arm.more:
+        other = load(other_name)
+        more = _block(other, arm.key, other_name)
+        if _start_of(other) != _start_of(data):
+            raise ValueError(
+                f"{other_name} starts from {_start_of(other)}, {arm.file} from {_start_of(data)}: "
+                f"the files of arm {arm.label!r} must share its start"
+            )
+        if more.get("budget_overrides") != block.get("budget_overrides"):
+            raise ValueError(
+                f"{other_name}: {arm.key} ran with {more.get('budget_overrides')}, in {arm.file} with "
+                f"{block.get('budget_overrides')}: the files of arm {arm.label!r} must share its settings"
+            )
+        if twice := sorted(set(runs) & set(more["runs"])):
+            raise ValueError(f"{other_name}: seed {', '.join(twice)} of {arm.key} is also in an earlier file")
+        runs.update(more["runs"])
+        lasts.append(other.get("controls", {}).get(f"{name}_last"))
+    pooled = {**block, "runs": runs, "aggregate": runs_aggregate({int(s): r for s, r in runs.items()})}
+    if any(last is None for last in lasts):
+        return pooled, None
+    seeds = {s: r for last in lasts for s, r in last["seeds"].items()}
+    tests = [r["test"]["success_once"] for r in seeds.values()]
+    test = {"success_once": sum(tests) / len(tests), "min": min(tests), "max": max(tests)}
+    return pooled, {**lasts[0], "seeds": seeds, "test": test}
+
+
 def _tests(block: dict, online: bool) -> list[float]:
     """The seeds' test success_once, in seed order."""
     if online:
@@ -223,7 +275,7 @@ def _load(results: Path, name: str, cache: dict[str, dict], label: str) -> dict:
 
 def _read(results: Path, arm: Arm, cache: dict[str, dict]) -> dict[str, Any]:
     data = _load(results, arm.file, cache, arm.label)
-    block = _block(data, arm.key, arm.file)
+    block, _ = _pooled(arm, lambda name: _load(results, name, cache, arm.label))
     tests = _tests(block, arm.online)
     curve = block.get("aggregate", {}).get("curve", []) if arm.online else []
     row = {
@@ -276,7 +328,7 @@ def _points(diff: float) -> str:
 
 def _any_saved(results: Path, headline: dict[str, list[Arm]]) -> bool:
     """Whether any file the headline names is saved (none: a fresh results folder)."""
-    return any((results / a.file).is_file() for arms in headline.values() for a in arms)
+    return any((results / f).is_file() for arms in headline.values() for a in arms for f in a.files)
 
 
 def overview_table(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> str | None:
@@ -300,15 +352,14 @@ def overview_table(results: Path, headline: dict[str, list[Arm]] = HEADLINE) -> 
                 steps_text = f"{_k(steps)} of replays"
             else:
                 steps_text = _k(steps)
-            if r["arm"].file not in files:
-                files.append(r["arm"].file)
+            files += [f for f in r["arm"].files if f not in files]
             first = f"{start} ({start_test:.2f})" if i == 0 else ""  # the start names its rows once
             lines.append(
                 f"| {first} | {r['arm'].label} | {len(r['tests'])} | "
                 f"{steps_text} | {r['mean']:.2f} ({' / '.join(f'{t:.2f}' for t in r['tests'])}) | "
                 f"{_points(r['mean'] - start_test)} | "
                 + (_points(r["mean"] - r["baseline"]) if "baseline" in r else "–")
-                + f" | {files.index(r['arm'].file) + 1} |"
+                + f" | {', '.join(str(files.index(f) + 1) for f in r['arm'].files)} |"
             )
     note = (
         "Test: 100 episodes per seed on the test seeds, of the best-validated weights (a run keeps its "
@@ -414,18 +465,28 @@ def arms_table(files: list[tuple[Path, dict]], headline: dict[str, list[Arm]] = 
     seeds, env steps, test success per seed, the validation curve of online arms, the gain over the
     start, and the file it comes from (by number, listed under the table)."""
     names = _start_names(files, headline)
+    by_name = {path.name: data for path, data in files}
+    number = {path.name: i for i, (path, _) in enumerate(files, 1)}
+    joins = [a for arms in headline.values() for a in arms if a.more and all(f in by_name for f in a.files)]
+    joined = {(a.file, a.key): a for a in joins}
+    folded = {(f, a.key) for a in joins for f in a.more}  # their runs are in the row of the file they join
     by_start: dict[tuple, list] = {}
-    for i, (_, data) in enumerate(files, 1):
-        s = data["controls"]["bc_start"]
-        key = (s["run_dir"], s["test"]["success_once"])
+    for i, (path, data) in enumerate(files, 1):
+        key = _start_of(data)
         blocks = {**data.get("controls", {}), **data.get("algorithms", {})}
         for group in ("controls", "algorithms"):
             for name, block in data.get(group, {}).items():
                 if name == "bc_start" or (name.endswith("_last") and name.removesuffix("_last") in blocks):
                     continue  # an arm's last weights are a figure of its own row
+                if (path.name, f"{group}.{name}") in folded:
+                    continue
+                last = blocks.get(f"{name}_last")
+                ref = str(i)
+                if (arm := joined.get((path.name, f"{group}.{name}"))) is not None:
+                    block, last = _pooled(arm, by_name.__getitem__)
+                    ref = ", ".join(str(number[f]) for f in arm.files)
                 online = group == "algorithms"
                 tests = _tests(block, online)
-                last = blocks.get(f"{name}_last")
                 last_tests = _tests(last, False) if last is not None else []
                 stopped = online and not tests and bool(block.get("aggregate", {}).get("curve"))
                 if not tests and not stopped:  # an arm whose runs all lack a test, and a curve
@@ -438,7 +499,7 @@ def arms_table(files: list[tuple[Path, dict]], headline: dict[str, list[Arm]] = 
                     replayed = _data_steps(block)
                     steps = "0" if replayed is None else f"{_k(replayed)} of replays"
                 row = [arm_name(group, name, block, overrides), len(tests), steps, tests, last_tests]
-                by_start.setdefault(key, []).append((row, _validation(block) if online else "–", i))
+                by_start.setdefault(key, []).append((row, _validation(block) if online else "–", ref))
     lines = [
         "| start (its test) | arm | seeds | env steps | test success (per seed) | validation (mean) at env "
         "steps | over the start | file |",

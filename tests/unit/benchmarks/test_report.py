@@ -433,3 +433,53 @@ def test_a_merged_sections_notes_follow_their_own_source_lines(tmp_path):
     assert not any(p.startswith("- `") for p in parts)  # no second list of the same files
     no_notes = _section(section, files[1:2], tmp_path / "RESULTS.md", repo=tmp_path)
     assert no_notes[-2].startswith("1. ") and no_notes[-1] == ""
+
+
+def _seed_file(seeds: dict[int, tuple[list[float], float]], overrides: list[str], start_test=0.3) -> dict:
+    """A file of one online arm: seed -> (validation at 0 and 20k env steps, test), its last weights."""
+    runs = {
+        str(s): {"validation": [{"env_steps": 20_000 * k, "success_once": v} for k, v in enumerate(val)]}
+        | {"test": {"success_once": test}}
+        for s, (val, test) in seeds.items()
+    }
+    last = {str(s): {"test": {"success_once": test - 0.1}} for s, (_, test) in seeds.items()}
+    return {
+        "controls": {
+            "bc_start": {"run_dir": "runs/start", "test": {"success_once": start_test}},
+            "flowq_last": {"seeds": last, "test": {"success_once": 0.0}},
+        },
+        "algorithms": {"flowq": {"budget_overrides": overrides, "runs": runs, "aggregate": {"curve": []}}},
+    }
+
+
+def test_an_arm_joins_the_seeds_of_several_files_of_one_command_and_refuses_other_settings(tmp_path):
+    from benchmarks.report.finetune_overview import Arm, arms_table, overview_table
+
+    a = _seed_file({0: ([0.3, 0.5], 0.6), 2: ([0.3, 0.7], 0.5)}, ["online.updates_per_step=0.5"])
+    b = _seed_file({1: ([0.3, 0.3], 0.7)}, ["online.updates_per_step=0.5"])
+    for name, data in (("finetune_online_a.json", a), ("finetune_online_b.json", b)):
+        (tmp_path / name).write_text(json.dumps(data))
+    arm = Arm("flow-Q", "finetune_online_a.json", "algorithms.flowq", more=("finetune_online_b.json",))
+    headline = {"Toy": [arm]}
+    rows = [r for r in overview_table(tmp_path, headline).splitlines() if r.startswith("| ")][1:]
+    # seeds in order across the files, both files numbered
+    assert rows == ["| Toy (0.30) | flow-Q | 3 | 20k | 0.60 (0.60 / 0.70 / 0.50) | +30 | – | 1, 2 |"]
+    files = [(tmp_path / "finetune_online_a.json", a), (tmp_path / "finetune_online_b.json", b)]
+    rows = [r for r in arms_table(files, headline).splitlines() if r.startswith("| ")][1:]
+    # one row: the curve recomputed over the three seeds, the last weights of all three
+    assert rows == [
+        "| Toy (0.30) | flowq online, 0.5 updates per env step | 3 | 20k | 0.60 (0.60 / 0.70 / 0.50; "
+        "last weights 0.50) | 0k: 0.30, 20k: 0.50 | +30 | 1, 2 |"
+    ]
+    # without the headline's join, each file is a row of its own
+    assert len([r for r in arms_table(files, {}).splitlines() if r.startswith("| ")][1:]) == 2
+
+    refusals = [
+        (_seed_file({1: ([0.3, 0.3], 0.7)}, ["online.updates_per_step=1"]), "must share its settings"),
+        (_seed_file({1: ([0.3, 0.3], 0.7)}, ["online.updates_per_step=0.5"], 0.4), "must share its start"),
+        (_seed_file({2: ([0.3, 0.3], 0.7)}, ["online.updates_per_step=0.5"]), "seed 2 of algorithms.flowq"),
+    ]
+    for other, message in refusals:
+        (tmp_path / "finetune_online_b.json").write_text(json.dumps(other))
+        with pytest.raises(ValueError, match=message):
+            overview_table(tmp_path, headline)

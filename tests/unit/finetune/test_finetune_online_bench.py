@@ -9,12 +9,12 @@ import json
 import pytest
 
 from benchmarks.finetune.bench_finetune_online import (
-    aggregate,
     last_weights_control,
     last_weights_eval_cmd,
     read_control,
     seeded_control,
 )
+from benchmarks.lib.stats import runs_aggregate
 from benchmarks.report.finetune import render_finetune_online
 
 
@@ -33,7 +33,7 @@ def test_aggregate_takes_mean_and_spread_at_the_steps_every_seed_reached():
         0: _run([(0, 0.2), (20_000, 0.4), (40_000, 0.6)], 0.5),
         1: _run([(0, 0.2), (20_000, 0.2)], 0.3, stopped=True),  # stopped before 40k
     }
-    agg = aggregate(runs)
+    agg = runs_aggregate(runs)
     assert agg["seeds"] == [0, 1]
     assert agg["test_mean"] == pytest.approx(0.4) and (agg["test_min"], agg["test_max"]) == (0.3, 0.5)
     assert [c["env_steps"] for c in agg["curve"]] == [0, 20_000]
@@ -66,7 +66,7 @@ def test_the_table_shows_controls_and_each_algorithm_with_its_curve(tmp_path):
             },
         },
         "algorithms": {
-            "dsrl": {"budget_overrides": ["x=1"], "runs": {"0": runs[0]}, "aggregate": aggregate(runs)}
+            "dsrl": {"budget_overrides": ["x=1"], "runs": {"0": runs[0]}, "aggregate": runs_aggregate(runs)}
         },
     }
     table = render_finetune_online(data)
@@ -110,7 +110,7 @@ def test_a_finished_run_reads_its_closing_validation_at_its_last_env_step(tmp_pa
         (20_000, 0.2),
         (40_000, 0.16),
     ]
-    assert aggregate({0: run})["curve"][0] == {"env_steps": 0, "mean": 0.18, "min": 0.18, "max": 0.18}
+    assert runs_aggregate({0: run})["curve"][0] == {"env_steps": 0, "mean": 0.18, "min": 0.18, "max": 0.18}
 
 
 def test_a_run_extended_after_it_finished_reads_each_closing_validation_at_its_env_step(tmp_path):
