@@ -130,6 +130,7 @@ HEADLINE: dict[str, list[Arm]] = {
             f"{_CAN_MLP}_flowq.json",
             "algorithms.flowq",
             _CAN_MLP_CBC,
+            more=(f"{_CAN_MLP}_flowq_seed1.json",),
         ),
         Arm(
             "flow-Q online, critics 2 x 256, 1 update per env step (the preset's: 0.5)",
