@@ -210,7 +210,8 @@ def _start_of(data: dict) -> tuple[str, float]:
 
 def _pooled(arm: Arm, load: Callable[[str], dict]) -> tuple[dict, dict | None]:
     """``arm``'s block with the runs of every file it names (one file: as saved), and its last weights'
-    control (``<name>_last``, seeds joined; None unless every file has one)."""
+    control (``<name>_last``; joined: its seeds alone, whose tests the tables read; None unless every
+    file has one)."""
     data = load(arm.file)
     block = _block(data, arm.key, arm.file)
     group, _, name = arm.key.partition(".")
@@ -240,10 +241,7 @@ def _pooled(arm: Arm, load: Callable[[str], dict]) -> tuple[dict, dict | None]:
     pooled = {**block, "runs": runs, "aggregate": runs_aggregate({int(s): r for s, r in runs.items()})}
     if any(last is None for last in lasts):
         return pooled, None
-    seeds = {s: r for last in lasts for s, r in last["seeds"].items()}
-    tests = [r["test"]["success_once"] for r in seeds.values()]
-    test = {"success_once": sum(tests) / len(tests), "min": min(tests), "max": max(tests)}
-    return pooled, {**lasts[0], "seeds": seeds, "test": test}
+    return pooled, {"seeds": {s: r for last in lasts for s, r in last["seeds"].items()}}
 
 
 def _tests(block: dict, online: bool) -> list[float]:
