@@ -48,6 +48,7 @@ from benchmarks.report.success import (
     render_experts,
     render_main_job,
     render_multimodal,
+    render_network_success,
     render_open_loop,
     render_pusht_modes,
     render_success,
@@ -109,6 +110,12 @@ GROUPS: dict[str, list[Section]] = {
             "Success and convergence, every task and method",
             render_success,
             True,
+            produced_by=TRAINED,
+        ),
+        Section(
+            r"network_success\.json",
+            "State denoisers: success of the MLP against the UNet",
+            render_network_success,
             produced_by=TRAINED,
         ),
         Section(

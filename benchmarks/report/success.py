@@ -16,6 +16,7 @@ __all__ = [
     "render_experts",
     "render_main_job",
     "render_multimodal",
+    "render_network_success",
     "render_open_loop",
     "render_pusht_modes",
     "render_success",
@@ -304,3 +305,69 @@ def render_experts(d: dict) -> str:
     )
     sides = ", ".join(f"{k} {v:.2f}" for k, v in d.get("side_share", {}).items())
     return text + (f"\n\nShare of episodes per side of the block: {sides}." if sides else "")
+
+
+def _net_cell(block: dict) -> str:
+    """One network's test: the headline mean with Wilson's interval over the seeds' episodes pooled."""
+    metric = block.get("metric", "success_once")
+    text = f"{block['success_once']['mean']:.3f} {_pooled_interval(block.get('per_seed', []))}"
+    if metric != "success_once":  # PushT: Diffusion Policy's score first, its success beside
+        text = f"{metric} {block[metric]['mean']:.3f}; success {text}"
+    return text
+
+
+def _seeds(block: dict) -> str:
+    n = block["success_once"]["n"]
+    return f"{n} seed{'s' * (n != 1)}"
+
+
+def _cpu_per_run(block: dict) -> str:
+    timed = [r["cpu_seconds"] for r in block.get("per_seed", []) if r.get("cpu_seconds")]
+    return f"{sum(timed) / len(timed):,.0f}" if timed else "–"
+
+
+def _steps_to_90(block: dict) -> str:
+    steps = [s for s, _ in convergence_steps(block)]
+    return f"{sum(steps) / len(steps):,.0f}" if steps else "–"
+
+
+def render_network_success(d: dict) -> str:
+    """The MLP denoiser's L1 Flow against the UNet's, task by task: the test of the weights each run
+    ships, the MLP's last weights, whether the MLP's mean lies in the UNet's interval, convergence and
+    each run's CPU seconds."""
+    from benchmarks.report.claims import pooled_interval
+
+    rows, inside = [], 0
+    for task, t in d["tasks"].items():
+        unet, mlp = t["unet"]["block"], t["mlp"]["l1flow"]
+        last = t["mlp"].get("l1flow_last_weights")
+        ci = pooled_interval(unet.get("per_seed", []))
+        within = ci is not None and ci[0] <= mlp["success_once"]["mean"] <= ci[1]
+        inside += within
+        ua, ma = t["unet"]["args"], t["args"]
+        rows.append(
+            [
+                task,
+                ma["demos"],
+                f"{_net_cell(unet)} ({ua['steps']:,} steps, {_seeds(unet)} × "
+                f"{ua.get('eval_episodes', '?')}; `{t['unet']['file']}`)",
+                f"{_net_cell(mlp)} ({ma['steps']:,} steps, {_seeds(mlp)} × {ma.get('eval_episodes', '?')})",
+                _net_cell(last) if last else "–",
+                "yes" if within else "no",
+                f"{_steps_to_90(unet)} / {_steps_to_90(mlp)}",
+                f"{_cpu_per_run(unet)} / {_cpu_per_run(mlp)}",
+            ]
+        )
+    header = ["task", "demos", "UNet L1 Flow, shipped weights", "MLP L1 Flow, shipped weights"]
+    header += ["MLP, last weights", "MLP in UNet's interval", "steps to 90 % (UNet / MLP)"]
+    header += ["CPU s per run (UNet / MLP)"]
+    text = table(header, rows)
+    return text + (
+        f"\n\nThe MLP's success_once mean lies inside the UNet's 95 % interval on {inside} of {len(rows)} "
+        "tasks. Each network's cell: mean success_once over seeds with Wilson's 95 % interval over their "
+        "test episodes pooled (PushT: Diffusion Policy's score first). The UNet's figures are the published "
+        "file named in its cell, measured under that file's own budget and checkpoint rule (its section "
+        "above); where its training steps differ from the MLP's, the two rows compare networks at "
+        "different step counts; the per-step costs are in 'State denoisers: the UNet against the MLP'. "
+        "CPU s per run: the whole run, its demonstrations, validations and test included."
+    )

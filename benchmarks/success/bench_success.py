@@ -56,7 +56,7 @@ from benchmarks.lib.stats import mean_and_spread, steps_to_fraction_of_best
 from l1flow_rl.commands.cli import compose_config
 from l1flow_rl.workspace.checkpoint import flatten_config
 
-__all__ = ["collect", "grid_extra", "main"]
+__all__ = ["collect", "finished_enough", "grid_extra", "grid_setting", "main"]
 
 #: fields every grid sets for itself, which ``args`` holds on their own (or which say nothing of
 #: what was measured): never listed among the ``extra`` settings
@@ -131,6 +131,17 @@ def _missing(by_task: dict[str, dict[str, list[Run]]]) -> list[str]:
     return missing
 
 
+def finished_enough(by_task: dict[str, dict[str, list[Run]]], partial: bool) -> bool:
+    """Whether to collect: every run and re-scoring finished, or ``partial`` (``--partial``) asked
+    for what is; what is unfinished is listed on stderr either way."""
+    missing = _missing(by_task)
+    if missing:
+        print("not finished:\n  " + "\n  ".join(missing), file=sys.stderr)
+        if not partial:
+            print("finish the grid (relaunch its command), or pass --partial", file=sys.stderr)
+    return partial or not missing
+
+
 def collect(runs: list[Run]) -> dict[str, dict[str, Any]]:
     """The ``tasks`` blocks of a success file from finished runs: task -> label -> figures."""
     by_task: dict[str, dict[str, list[Run]]] = {}
@@ -170,7 +181,7 @@ def collect(runs: list[Run]) -> dict[str, dict[str, Any]]:
     return results
 
 
-def _setting(task: str, runs: list[Run], roots: list[str]) -> dict[str, Any]:
+def grid_setting(task: str, runs: list[Run], roots: list[str]) -> dict[str, Any]:
     """The grid's setting for one task, read from its runs' configs (the report shows it)."""
 
     def common(dotted: str) -> Any:
@@ -216,12 +227,8 @@ def main(argv: list[str] | None = None) -> int:
     by_task: dict[str, dict[str, list[Run]]] = {}
     for r in runs:
         by_task.setdefault(r.setting("task.name"), {}).setdefault(r.setting("policy.name"), []).append(r)
-    missing = _missing(by_task)
-    if missing:
-        print("not finished:\n  " + "\n  ".join(missing), file=sys.stderr)
-        if not args.partial:
-            print("finish the grid (relaunch its command), or pass --partial", file=sys.stderr)
-            return 2
+    if not finished_enough(by_task, args.partial):
+        return 2
     results = collect(runs)
     saved = []
     for task, block in results.items():
@@ -231,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
         figures = {
             "machine": machine_info(),
             "quick": args.quick,
-            "args": _setting(task, task_runs, roots),
+            "args": grid_setting(task, task_runs, roots),
             "tasks": {task: block},
             "provenance": {**(provenance() or {}), "runs": grid_provenance(roots, task_runs)},
         }

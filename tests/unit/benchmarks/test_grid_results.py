@@ -149,3 +149,45 @@ def test_an_ablation_grid_becomes_its_loss_variants_and_sampler_swaps(tmp_path):
     )
     assert saved["args"]["task"] == "maniskill_pushcube" and saved["args"]["seeds"] == [0, 1]
     assert (tmp_path / "ablations_maniskill_pushcube_20demos_50steps.png").is_file()
+
+
+def _unet_file(results: Path, name: str, demos: int, steps: int, seeds: int, extra: list[str]) -> None:
+    per_seed = [{"success_once": 0.8, "episodes": 50, "cpu_seconds": 100.0}] * seeds
+    block = {"success_once": {"mean": 0.8, "n": seeds}, "per_seed": per_seed, "curves": []}
+    args = {"demos": demos, "steps": steps, "eval_episodes": 50, "extra": extra}
+    data = {"args": args, "tasks": {"maniskill_pushcube": {"l1flow": block}}}
+    (results / name).write_text(json.dumps(data))
+
+
+def test_the_mlp_grid_is_paired_with_the_unet_file_of_its_data_most_seeds_first(tmp_path, capsys):
+    from benchmarks.report.success import render_network_success
+    from benchmarks.success import bench_networks
+
+    results, grid = tmp_path / "results", tmp_path / "grid"
+    results.mkdir()
+    _unet_file(results, "success_a.json", 100, 12000, 1, [])  # fewer seeds, same steps
+    _unet_file(results, "success_b.json", 100, 2500, 3, [])  # the one chosen
+    _unet_file(results, "success_c.json", 50, 12000, 3, [])  # other data
+    _unet_file(results, "success_d.json", 100, 12000, 3, ["network.name=mlp"])  # not the UNet
+    common = ["task=maniskill_pushcube", "policy=l1flow", "network=mlp", "train.steps=12000", "demos.num=100"]
+    for seed, success in ((0, 0.7), (1, 0.9)):
+        run = _run(grid, f"maniskill_pushcube/l1flow/seed{seed}", seed, [*common, f"seed={seed}"], success)
+        _rescore(run, "last_weights", success - 0.1)
+    out = tmp_path / "out"
+    assert bench_networks.main([str(grid), "--results", str(results), "--out-dir", str(out)]) == 0
+    task = json.loads((out / "network_success.json").read_text())["tasks"]["maniskill_pushcube"]
+    assert task["unet"]["file"] == "success_b.json"
+    assert task["mlp"]["l1flow"]["success_once"]["mean"] == 0.8
+    assert task["mlp"]["l1flow_last_weights"]["success_once"]["mean"] == 0.7
+    row = render_network_success({"tasks": {"maniskill_pushcube": task}}).splitlines()[2]
+    # 0.8 over the MLP's 200 episodes lies in the UNet's pooled interval (0.8 over 150 episodes)
+    assert row.startswith("| maniskill_pushcube | 100 | 0.800 [0.73, 0.86] (2,500 steps, 3 seeds × 50;")
+    assert "| 0.700 [0.63, 0.76] | yes |" in row
+
+    # runs on the UNet are not an MLP grid; a task without the UNet's figures is refused
+    assert bench_networks.main([str(grid), "--results", str(tmp_path / "none"), "--out-dir", str(out)]) == 2
+    assert "no published UNet L1 Flow figures with 100 demos" in capsys.readouterr().err
+    unet = tmp_path / "unet"
+    _run(unet, "maniskill_pushcube/l1flow/seed0", 0, [*common[:2], "seed=0"], 0.5)
+    assert bench_networks.main([str(unet), "--results", str(results), "--out-dir", str(out)]) == 2
+    assert "runs not on network=mlp: maniskill_pushcube/l1flow/seed0" in capsys.readouterr().err
