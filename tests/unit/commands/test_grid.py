@@ -160,3 +160,17 @@ def test_every_success_grid_composes_its_sweep_into_its_own_folder(grid):
     policies = {o.split("=")[1] for job in jobs for o in job if o.startswith("policy=")}
     assert policies == {"l1flow", "flow", "ddpm", "regression"}
     assert {o for job in jobs for o in job if o.startswith("seed=")} == {"seed=0", "seed=1", "seed=2"}
+
+
+def test_the_peginsertion_grid_runs_every_method_on_the_mlp_at_maniskills_budget():
+    from hydra.types import RunMode
+
+    from l1flow_rl.commands.cli import _compose, _create_hydra, _sweep_jobs
+
+    hydra = _create_hydra("train")
+    jobs = _sweep_jobs(hydra, ["+grid=success_peginsertion"])
+    assert len(jobs) == 12  # four methods x three seeds
+    full = _compose(hydra, jobs[0], RunMode.MULTIRUN)
+    assert full.hydra.sweep.dir == "runs/grid/success_peginsertion" and full.resume == "auto"
+    assert (full.task.name, full.network.name, full.demos.num) == ("maniskill_peginsertion", "mlp", 100)
+    assert (full.train.steps, full.train.eval_every, full.eval.episodes) == (100000, 10000, 100)
