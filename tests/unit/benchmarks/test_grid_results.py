@@ -179,10 +179,12 @@ def test_the_mlp_grid_is_paired_with_the_unet_file_of_its_data_most_seeds_first(
     assert task["unet"]["file"] == "success_b.json"
     assert task["mlp"]["l1flow"]["success_once"]["mean"] == 0.8
     assert task["mlp"]["l1flow_last_weights"]["success_once"]["mean"] == 0.7
-    row = render_network_success({"tasks": {"maniskill_pushcube": task}}).splitlines()[2]
+    text = render_network_success({"tasks": {"maniskill_pushcube": task}})
+    assert "inside the UNet's 95 % interval on 1, above it on 0 and below it on 0 of 1 tasks" in text
+    row = text.splitlines()[2]
     # 0.8 over the MLP's 200 episodes lies in the UNet's pooled interval (0.8 over 150 episodes)
     assert row.startswith("| maniskill_pushcube | 100 | 0.800 [0.73, 0.86] (2,500 steps, 3 seeds × 50;")
-    assert "| 0.700 [0.63, 0.76] | yes |" in row
+    assert row.endswith("| 0.700 [0.63, 0.76] | inside | – / 10 (every – / 500) | 100 / 5 |")
 
     # runs on the UNet are not an MLP grid; a task without the UNet's figures is refused
     assert bench_networks.main([str(grid), "--results", str(tmp_path / "none"), "--out-dir", str(out)]) == 2
