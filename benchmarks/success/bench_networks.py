@@ -1,4 +1,4 @@
-"""The MLP denoiser against the UNet on the same tasks and data: success, convergence and cost per step.
+"""The MLP denoiser against the UNet on the same tasks and data: success, convergence and cost.
 
 The MLP's side is a success grid run with ``network=mlp`` (L1 Flow only; its last weights re-scored
 too); the UNet's side is the published L1 Flow figures of the same task (``success_<task>.json``,
@@ -6,8 +6,8 @@ written by ``bench_success``), so both come from the same demonstrations and pro
 
     l1flow-rl train -m +grid=success_maniskill policy=l1flow network=mlp \\
         hydra.sweep.dir=runs/grid/success_maniskill_mlp
-    l1flow-rl eval -m +grid=success_maniskill +rescore=last_weights policy=l1flow network=mlp \\
-        hydra.sweep.dir=runs/grid/success_maniskill_mlp
+    l1flow-rl eval -m +grid=success_maniskill +rescore=last_weights policy=l1flow \\
+        hydra.sweep.dir=runs/grid/success_maniskill_mlp   # the network comes from the checkpoints
     python -m benchmarks.success.bench_networks runs/grid/success_*_mlp
 
 Saved: ``benchmarks/results/network_success.json``, per task: the MLP's block (as ``bench_success``
