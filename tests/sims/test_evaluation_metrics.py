@@ -22,6 +22,9 @@ def test_wilson_interval_at_the_edges_and_its_coverage():
     # closed forms at 0/n and n/n: [0, z^2/(n+z^2)] and [n/(n+z^2), 1]
     assert wilson_interval(0, 10) == pytest.approx((0.0, Z2 / (10 + Z2)))
     assert wilson_interval(10, 10) == pytest.approx((10 / (10 + Z2), 1.0))
+    # exactly, not 1e-17 beside the rate (a plot's error bar below the point would be negative)
+    assert [wilson_interval(0, n)[0] for n in (10, 50, 100)] == [0.0, 0.0, 0.0]
+    assert [wilson_interval(n, n)[1] for n in (10, 50, 100)] == [1.0, 1.0, 1.0]
     lo, hi = wilson_interval(25, 50)
     assert (lo, hi) == pytest.approx((0.3664, 0.6336), abs=1e-4)  # the textbook value for 25/50
     # about 95 % of intervals hold the true rate (p = 0.3, n = 50, 4000 draws)
