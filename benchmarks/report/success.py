@@ -326,6 +326,12 @@ def _cpu_per_run(block: dict) -> str:
     return f"{sum(timed) / len(timed):,.0f}" if timed else "–"
 
 
+def _episodes(block: dict) -> str:
+    """Each seed's test episodes (what the protocol ran, which may differ from ``eval.episodes``)."""
+    counts = sorted({r.get("episodes") for r in block.get("per_seed", []) if r.get("episodes")})
+    return " / ".join(map(str, counts)) or "?"
+
+
 def _every(args: dict) -> str:
     every = args.get("eval_every")
     return f"{every:,}" if isinstance(every, int) else "–"
@@ -355,9 +361,9 @@ def render_network_success(d: dict) -> str:
             [
                 task,
                 ma["demos"],
-                f"{_net_cell(unet)} ({ua['steps']:,} steps, {_seeds(unet)} × "
-                f"{ua.get('eval_episodes', '?')}; `{t['unet']['file']}`)",
-                f"{_net_cell(mlp)} ({ma['steps']:,} steps, {_seeds(mlp)} × {ma.get('eval_episodes', '?')})",
+                f"{_net_cell(unet)} ({ua['steps']:,} steps, {_seeds(unet)} × {_episodes(unet)}; "
+                f"`{t['unet']['file']}`)",
+                f"{_net_cell(mlp)} ({ma['steps']:,} steps, {_seeds(mlp)} × {_episodes(mlp)})",
                 _net_cell(last) if last else "–",
                 verdict,
                 f"{_steps_to_90(unet)} / {_steps_to_90(mlp)} (every {_every(ua)} / {_every(ma)})",
