@@ -29,30 +29,37 @@ from benchmarks.lib.common import RESULTS_DIR, machine_info, parse_args, provena
 from benchmarks.lib.runs import grid_provenance, grid_runs
 from benchmarks.success.bench_success import collect, finished_enough, grid_setting
 
-__all__ = ["main", "unet_reference"]
+__all__ = ["main", "published_success", "unet_reference"]
 
 #: the method both networks are compared on
 METHOD = "l1flow"
 
 
-def unet_reference(task: str, demos: int, steps: int, results: Path) -> dict[str, Any] | None:
+def published_success(results: Path) -> list[tuple[str, dict[str, Any]]]:
+    """(name, data) of every measured success file under ``results`` (``--quick`` checks left out)."""
+    found = [(p.name, json.loads(p.read_text())) for p in sorted(results.glob("success_*.json"))]
+    return [(name, data) for name, data in found if not data.get("quick")]
+
+
+def unet_reference(
+    task: str, demos: int, steps: int, published: list[tuple[str, dict[str, Any]]]
+) -> dict[str, Any] | None:
     """The published UNet L1 Flow figures of ``task`` to compare the MLP with: among the success files
     with that task's L1 Flow block on the UNet and ``demos`` demonstrations, the most seeds, then the
     steps closest to ``steps``. None when no file qualifies."""
     candidates = []
-    for path in sorted(results.glob("success_*.json")):
-        data = json.loads(path.read_text())
+    for name, data in published:
         args = data.get("args") or {}
         block = (data.get("tasks") or {}).get(task, {}).get(METHOD)
         on_unet = not any(o.startswith(("network=", "network.name=")) for o in args.get("extra") or [])
-        if data.get("quick") or block is None or not on_unet or args.get("demos") != demos:
+        if block is None or not on_unet or args.get("demos") != demos:
             continue
         seeds = block["success_once"]["n"]
-        candidates.append(((-seeds, abs(args["steps"] - steps), path.name), path, data, block))
+        candidates.append(((-seeds, abs(args["steps"] - steps), name), data, block))
     if not candidates:
         return None
-    _, path, data, block = min(candidates, key=lambda c: c[0])
-    return {"file": path.name, "args": data.get("args"), "block": block}
+    (_, _, name), data, block = min(candidates, key=lambda c: c[0])
+    return {"file": name, "args": data.get("args"), "block": block}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -76,10 +83,10 @@ def main(argv: list[str] | None = None) -> int:
         by_task.setdefault(r.setting("task.name"), {}).setdefault(METHOD, []).append(r)
     if not finished_enough(by_task, args.partial):
         return 2
-    tasks: dict[str, Any] = {}
+    published, tasks = published_success(Path(args.results)), {}
     for task, block in collect(runs).items():
         setting = grid_setting(task, by_task[task][METHOD], roots)
-        reference = unet_reference(task, setting["demos"], setting["steps"], Path(args.results))
+        reference = unet_reference(task, setting["demos"], setting["steps"], published)
         if reference is None:
             print(f"{task}: no published UNet L1 Flow figures with {setting['demos']} demos", file=sys.stderr)
             return 2
