@@ -54,7 +54,11 @@ from benchmarks.lib.runs import (
 )
 from benchmarks.lib.stats import mean_and_spread, steps_to_fraction_of_best
 from l1flow_rl.commands.cli import compose_config
+from l1flow_rl.config import CONFIG_DIR
 from l1flow_rl.workspace.checkpoint import flatten_config
+
+#: the network configs a run may have chosen (``network=<name>``)
+NETWORK_CONFIGS = Path(CONFIG_DIR) / "network"
 
 __all__ = ["collect", "finished_enough", "grid_extra", "grid_setting", "main"]
 
@@ -80,23 +84,30 @@ SETTING_FIELDS = (
 )
 
 
-def _defaults(task: str, policy: str) -> tuple[dict[str, Any], bool]:
-    """The flattened default config of ``task=<task> policy=<policy>``, and whether the task's own
-    fields are in it (a task without a config file, set field by field, compares the rest only)."""
+def _defaults(task: str, policy: str, network: str | None = None) -> tuple[dict[str, Any], bool]:
+    """The flattened default config of ``task=<task> policy=<policy>`` (and ``network=<network>``),
+    and whether the task's own fields are in it (a task without a config file, set field by field,
+    compares the rest only)."""
+    group = [f"network={network}"] if network else []
     try:
-        composed = compose_config([f"task={task}", f"policy={policy}"])
+        composed = compose_config([f"task={task}", f"policy={policy}", *group])
     except HydraException:  # no configs/task/<task>.yaml: the run set the task's fields one by one
-        return flatten_config(OmegaConf.to_container(compose_config([f"policy={policy}"]))), False
+        return flatten_config(OmegaConf.to_container(compose_config([f"policy={policy}", *group]))), False
     return flatten_config(OmegaConf.to_container(composed)), True
 
 
 def grid_extra(runs: list[Run]) -> list[str]:
     """The settings every run shares that differ from its task's and method's defaults, as
     ``key=value`` overrides (``SETTING_FIELDS`` left out): what makes this grid other than the plain
-    command, e.g. ``eval.protocol=diffusion_policy`` or ``network.name=mlp``."""
+    command, e.g. ``eval.protocol=diffusion_policy`` or ``network=mlp`` (a network config's own
+    fields are compared with that config's, so that choosing it reads as one override)."""
     shared: dict[str, Any] | None = None
     for run in runs:
-        defaults, with_task = _defaults(run.setting("task.name"), run.setting("policy.name"))
+        task, policy, network = (run.setting(k) for k in ("task.name", "policy.name", "network.name"))
+        defaults, with_task = _defaults(task, policy)
+        chosen = network if network and network != defaults.get("network.name") else None
+        if chosen and (NETWORK_CONFIGS / f"{chosen}.yaml").is_file():
+            defaults, with_task = _defaults(task, policy, chosen)
         diffs = {
             key: value
             for key, value in flatten_config(run.config).items()
@@ -104,6 +115,8 @@ def grid_extra(runs: list[Run]) -> list[str]:
             and not any(key == f or key.startswith(f + ".") for f in SETTING_FIELDS)
             and (with_task or not key.startswith("task."))
         }
+        if chosen and defaults.get("network.name") == chosen:
+            diffs["network"] = chosen
         shared = diffs if shared is None else {k: v for k, v in shared.items() if diffs.get(k, object()) == v}
     return [f"{k}={v if isinstance(v, str) else json.dumps(v)}" for k, v in sorted((shared or {}).items())]
 

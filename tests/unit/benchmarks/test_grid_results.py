@@ -193,3 +193,13 @@ def test_the_mlp_grid_is_paired_with_the_unet_file_of_its_data_most_seeds_first(
     _run(unet, "maniskill_pushcube/l1flow/seed0", 0, [*common[:2], "seed=0"], 0.5)
     assert bench_networks.main([str(unet), "--results", str(results), "--out-dir", str(out)]) == 2
     assert "runs not on network=mlp: maniskill_pushcube/l1flow/seed0" in capsys.readouterr().err
+
+
+def test_a_network_choice_reads_as_one_override_and_a_field_changed_within_it_as_its_own(tmp_path):
+    common = ["task=maniskill_pushcube", "policy=l1flow", "network=mlp"]
+    _run(tmp_path, "a/l1flow/seed0", 0, [*common, "seed=0"], 0.5)
+    _run(tmp_path, "a/l1flow/seed1", 1, [*common, "seed=1", "network.hidden_dims=[256,256]"], 0.5)
+    runs = grid_runs(tmp_path)
+    assert bench_success.grid_extra(runs[:1]) == ["network=mlp"]  # not each network.* field
+    assert bench_success.grid_extra(runs[1:]) == ["network=mlp", "network.hidden_dims=[256, 256]"]
+    assert bench_success.grid_extra(runs) == ["network=mlp"]  # what the runs share
