@@ -26,6 +26,7 @@ were measured at, their launchers, their shared resolved config and what the gri
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
@@ -84,6 +85,7 @@ SETTING_FIELDS = (
 )
 
 
+@functools.cache  # one composition per (task, method, network), not one per run
 def _defaults(task: str, policy: str, network: str | None = None) -> tuple[dict[str, Any], bool]:
     """The flattened default config of ``task=<task> policy=<policy>`` (and ``network=<network>``),
     and whether the task's own fields are in it (a task without a config file, set field by field,
@@ -105,9 +107,9 @@ def grid_extra(runs: list[Run]) -> list[str]:
     for run in runs:
         task, policy, network = (run.setting(k) for k in ("task.name", "policy.name", "network.name"))
         defaults, with_task = _defaults(task, policy)
-        chosen = network if network and network != defaults.get("network.name") else None
-        if chosen and (NETWORK_CONFIGS / f"{chosen}.yaml").is_file():
-            defaults, with_task = _defaults(task, policy, chosen)
+        chosen = network != defaults.get("network.name") and (NETWORK_CONFIGS / f"{network}.yaml").is_file()
+        if chosen:
+            defaults, with_task = _defaults(task, policy, network)
         diffs = {
             key: value
             for key, value in flatten_config(run.config).items()
@@ -115,8 +117,8 @@ def grid_extra(runs: list[Run]) -> list[str]:
             and not any(key == f or key.startswith(f + ".") for f in SETTING_FIELDS)
             and (with_task or not key.startswith("task."))
         }
-        if chosen and defaults.get("network.name") == chosen:
-            diffs["network"] = chosen
+        if chosen:
+            diffs["network"] = network
         shared = diffs if shared is None else {k: v for k, v in shared.items() if diffs.get(k, object()) == v}
     return [f"{k}={v if isinstance(v, str) else json.dumps(v)}" for k, v in sorted((shared or {}).items())]
 
