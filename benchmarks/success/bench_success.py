@@ -91,10 +91,12 @@ def _defaults(task: str, policy: str, network: str | None = None) -> tuple[dict[
     and whether the task's own fields are in it (a task without a config file, set field by field,
     compares the rest only)."""
     group = [f"network={network}"] if network else []
+    # validated as for eval: a distilled method's training defaults lack the teacher its runs named
     try:
-        composed = compose_config([f"task={task}", f"policy={policy}", *group])
+        composed = compose_config([f"task={task}", f"policy={policy}", *group], command="eval")
     except HydraException:  # no configs/task/<task>.yaml: the run set the task's fields one by one
-        return flatten_config(OmegaConf.to_container(compose_config([f"policy={policy}", *group]))), False
+        plain = compose_config([f"policy={policy}", *group], command="eval")
+        return flatten_config(OmegaConf.to_container(plain)), False
     return flatten_config(OmegaConf.to_container(composed)), True
 
 
