@@ -71,6 +71,17 @@ class Run:
             node = node[part]
         return node
 
+    def choice(self, group: str) -> str | None:
+        """The option it chose in a config group (``policy`` -> ``onedp_d``), from hydra's record of
+        the job; None when the record lacks it. A config may rename what it chose (``policy.name``)."""
+        import yaml
+
+        record = self.run_dir / ".hydra" / "hydra.yaml"
+        if not record.is_file():
+            return None
+        runtime = (yaml.safe_load(record.read_text()) or {}).get("hydra", {}).get("runtime", {})
+        return (runtime.get("choices") or {}).get(group)
+
     def rescorings(self) -> dict[str, Path]:
         """Its finished re-scorings by name: ``rescore_<name>/eval.json`` (``l1flow-rl eval -m``)."""
         return {

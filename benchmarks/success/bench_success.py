@@ -107,7 +107,8 @@ def grid_extra(runs: list[Run]) -> list[str]:
     fields are compared with that config's, so that choosing it reads as one override)."""
     shared: dict[str, Any] | None = None
     for run in runs:
-        task, policy, network = (run.setting(k) for k in ("task.name", "policy.name", "network.name"))
+        task, network = run.setting("task.name"), run.setting("network.name")
+        policy = run.choice("policy") or run.setting("policy.name")
         defaults, with_task = _defaults(task, policy)
         chosen = network != defaults.get("network.name") and (NETWORK_CONFIGS / f"{network}.yaml").is_file()
         if chosen:
