@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.report import finetune_overview
+from benchmarks.report.distillation import render_distillation
 from benchmarks.report.finetune import (
     render_critic_bias,
     render_finetune_cost,
@@ -110,6 +111,12 @@ GROUPS: dict[str, list[Section]] = {
             "Success and convergence, every task and method",
             render_success,
             True,
+            produced_by=TRAINED,
+        ),
+        Section(
+            r"distillation_.*\.json",
+            "Distillation-based fast policies (the paper's second table)",
+            render_distillation,
             produced_by=TRAINED,
         ),
         Section(
@@ -308,7 +315,7 @@ def _summary_parts(results: Path, doc: Path, level: str, overview_table: bool) -
     parts = []
     claims = claims_table(results)
     if claims:  # the digest first: each claim, its figures and a rule's verdict
-        parts += [f"{level} The paper's four claims, as measured here", "", claims, ""]
+        parts += [f"{level} The paper's claims, as measured here", "", claims, ""]
     overview = success_overview.overview_table(results) if overview_table else None
     if overview:  # every task's methods side by side, before each file's own section
         parts += [f"{level} Success across tasks (the paper's Table 2 and Figure 4)", "", overview, ""]

@@ -97,7 +97,7 @@ def test_check_names_each_out_of_date_section(tmp_path, capsys):
     assert f"{readme}: the results summary between the markers is out of date" in out
     stale = next(line for line in out.splitlines() if line.startswith(f"{doc}: out of date in"))
     assert "'Multi-modality (toy)'" in stale
-    assert "'The paper's four claims, as measured here'" in stale
+    assert "'The paper's claims, as measured here'" in stale
     assert "Simulators" not in stale and "'Results'" not in stale  # untouched sections are not named
 
     # a hand edit of RESULTS.md is named too, and rebuilding restores it

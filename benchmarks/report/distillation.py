@@ -1,0 +1,133 @@
+"""The paper's second table (``distillation_<task>.json``, ``success/bench_distillation``): L1 Flow
+against Diffusion Policy under DDPM, DDIM and EDM, Consistency Policy and OneDP, one row per method
+and NFE; and its claim's rows for the summary ("comparable to distillation-based methods with 5-7×
+less training")."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from benchmarks.report.tables import interval, num, table
+
+__all__ = ["DISTILLED", "distillation_claim_rows", "render_distillation"]
+
+#: the rows that are distillation-based fast policies (a student trained from a teacher)
+DISTILLED = ("consistency_cp3", "consistency", "onedp_d", "onedp_s", "onedp_d_ddpm", "onedp_s_ddpm")
+#: the paper's training advantage: the distilled methods' epochs over L1 Flow's
+PAPER_TRAINING = (5.0, 7.0)
+
+
+def _pooled(row: dict[str, Any]) -> tuple[float, float] | None:
+    from benchmarks.report.claims import pooled_interval
+
+    return pooled_interval(row["per_seed"])
+
+
+def _mean(values: list[float] | None) -> float | None:
+    return sum(values) / len(values) if values else None
+
+
+def _to_90(row: dict[str, Any]) -> float | None:
+    """Mean steps to 90 % of its best with its teacher's counted (None: a re-scoring, or no seed's
+    validation rose above 0)."""
+    return _mean(row.get("steps_to_90pct_of_best_with_teacher"))
+
+
+def _training(row: dict[str, Any]) -> str:
+    steps, teacher = _mean(row["training_steps"]), row["teacher_steps"]
+    return f"{steps:,.0f}" + (f" ({teacher:,} teacher)" if teacher else "")
+
+
+def _verdict(below: list[str], ratios: dict[str, float], names: dict[str, str]) -> str:
+    """The claim's verdict from the distilled rows whose interval lies above L1 Flow's (``below``)
+    and each distilled row's training to 90 % of its best over L1 Flow's (``ratios``)."""
+    if below:
+        return "below " + ", ".join(below)
+    if not ratios:
+        return "comparable or better success; training not measured"
+    slower = [names[k] for k, v in ratios.items() if v <= 1]
+    if slower:
+        return "comparable or better success; not less training than " + ", ".join(slower)
+    least = min(ratios.values())
+    if least >= PAPER_TRAINING[0]:
+        return "holds"
+    return f"comparable or better success, with {least:.2g}× less training at the least (paper: 5-7×)"
+
+
+def render_distillation(d: dict) -> str:
+    """One row per method and NFE: success with the pooled interval and each seed, the training the
+    weights went through (the teacher's included), steps to 90 % of the best and the batch-1 latency."""
+    rows = []
+    for label, r in d["rows"].items():
+        seeds = ", ".join(f"{s['success_once']:.2f}" for s in r["per_seed"])
+        to_90 = _to_90(r)
+        latency = r["latency_batch1_ms"]["wall_ms"]
+        ratio = r.get("latency_vs_l1flow")
+        rows.append(
+            [
+                r["method"],
+                f"`{label}`",
+                r["nfe"],
+                f"{r['success_once']['mean']:.3f}",
+                interval(list(_pooled(r) or []) or None),
+                seeds,
+                _training(r),
+                f"{to_90:,.0f}" if to_90 is not None else "–",
+                f"{num(latency)}" + (f" ({num(ratio)}×)" if ratio is not None else ""),
+            ]
+        )
+    a = d["args"]
+    header = ["method", "row", "NFE", "success_once", "95 % interval", "per seed", "training steps"]
+    header += ["steps to 90 % of best", "batch-1 ms (× L1 Flow)"]
+    text = table(header, rows)
+    missing = d.get("missing_rows") or []
+    return text + (
+        f"\n\n{d['task']}, {a['demos']} demonstrations, `network={a['network']}`; "
+        f"{len(a['seeds'])} seed(s), {a['eval_episodes']} test episodes each. Teachers (DDPM, EDM) and L1 "
+        "Flow train on the success grids' budget; a student trains from its own seed's teacher for the "
+        "share of the teacher's budget its paper gives (CP 45 %, OneDP 2 %). Training steps: every stage "
+        "the shipped weights went through, the teacher's to its shipped checkpoint included (the paper "
+        "counts a student's epochs with its teacher's). Steps to 90 % of best: on the validation "
+        "curve, a student's shifted by its teacher's steps; a re-scoring has no curve of its own. "
+        "Interval: Wilson's 95 % over every seed's test episodes pooled. Latency: the seed-0 network "
+        f"under the row's sampler, median of {a.get('latency_rounds', '?')} rounds in one run, one "
+        "torch thread."
+        + (f" Rows without a finished evaluation: {', '.join(f'`{m}`' for m in missing)}." if missing else "")
+    )
+
+
+def distillation_claim_rows(results: Path, load: Any) -> list[list[str]]:
+    """The fifth claim per distillation file: L1 Flow's success against each distilled row's
+    (comparable unless its interval lies wholly below one), and the training each distilled row needed
+    to come within 90 % of its best, teacher included, as a multiple of L1 Flow's."""
+    rows = []
+    for path in sorted(results.glob("distillation_*.json")):
+        d = load(path)
+        if d is None or "l1flow" not in d["rows"]:
+            continue
+        own = d["rows"]["l1flow"]
+        distilled = {k: d["rows"][k] for k in DISTILLED if k in d["rows"]}
+        if not distilled:
+            continue
+        names = {k: f"{r['method']} {r['nfe']}" for k, r in distilled.items()}
+        mine, mine_ci = own["success_once"]["mean"], _pooled(own)
+        above = {k: ci for k, r in distilled.items() if (ci := _pooled(r)) and mine_ci and mine_ci[1] < ci[0]}
+        below = [names[k] for k in above]
+        l1_steps, steps = _to_90(own), {k: _to_90(r) for k, r in distilled.items()}
+        ratios = {k: v / l1_steps for k, v in steps.items() if l1_steps and v is not None}
+        cells = [f"{names[k]} NFE: {r['success_once']['mean']:.3f}" for k, r in distilled.items()]
+        if ratios:
+            lo, hi = min(ratios.values()), max(ratios.values())
+            cells.append(f"training to 90 % of best (teacher's included): {lo:.2g}-{hi:.2g}× L1 Flow's")
+        seeds = own["success_once"]["n"]
+        rows.append(
+            [
+                "comparable to distillation-based methods with 5-7× less training",
+                f"{d['task']} ({seeds} seed{'s' * (seeds != 1)}, `{path.name}`)",
+                f"success_once {mine:.3f}" + (f"; {l1_steps:,.0f} steps to 90 % of best" if l1_steps else ""),
+                "; ".join(cells),
+                _verdict(below, ratios, names),
+            ]
+        )
+    return rows
