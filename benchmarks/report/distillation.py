@@ -29,14 +29,14 @@ def _mean(values: list[float] | None) -> float | None:
 
 
 def _to_90(row: dict[str, Any]) -> float | None:
-    """Mean steps to 90 % of its best with its teacher's counted (None: a re-scoring, or no seed's
-    validation rose above 0)."""
-    return _mean(row.get("steps_to_90pct_of_best_with_teacher"))
+    """Mean steps to 90 % of its best over the seeds whose validation rose above 0, its teacher's
+    steps counted (None: a re-scoring, or no such seed)."""
+    return _mean([s for s in row.get("steps_to_90pct_of_best_with_teacher") or [] if s is not None])
 
 
 def _training(row: dict[str, Any]) -> str:
-    steps, teacher = _mean(row["training_steps"]), row["teacher_steps"]
-    return f"{steps:,.0f}" + (f" ({teacher:,} teacher)" if teacher else "")
+    steps, teacher = _mean(row["training_steps"]), _mean(row["teacher_steps"])
+    return f"{steps:,.0f}" + (f" ({teacher:,.0f} teacher)" if teacher else "")
 
 
 def _verdict(below: list[str], ratios: dict[str, float], names: dict[str, str]) -> str:

@@ -122,9 +122,9 @@ def row_latency_calls(
     return calls, nfe
 
 
-def _teacher_steps(evaluations: list[dict[str, Any]]) -> int:
-    steps = {sum(s["steps"] for s in e.get("ledger") or [] if s["stage"] == "teacher") for e in evaluations}
-    return steps.pop() if len(steps) == 1 else max(steps)
+def _teacher_steps(evaluation: dict[str, Any]) -> int:
+    """The training its teacher had when it taught (0: a run trained from demonstrations alone)."""
+    return sum(s["steps"] for s in evaluation.get("ledger") or [] if s["stage"] == "teacher")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -166,8 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     for row in rows:
         block = blocks[row.label]
         evaluations = [_evaluation(r, row.label) for r in scored[row.label]]
-        teacher = _teacher_steps(evaluations)
-        to_90 = [s for s in block["steps_to_90pct_of_best"] if s is not None]
+        teacher = [_teacher_steps(e) for e in evaluations]  # per seed, as the block's
+        to_90 = block["steps_to_90pct_of_best"]  # per seed; empty for a re-scoring (no curve)
         table[row.label] = {
             "method": row.method,
             "nfe": nfe[row.label],
@@ -175,8 +175,13 @@ def main(argv: list[str] | None = None) -> int:
             # every stage the shipped weights went through, the teacher's to its checkpoint included
             "training_steps": [int(e.get("total_steps_with_teacher") or e["step"]) for e in evaluations],
             "teacher_steps": teacher,
-            # the student's own curve shifted by its teacher's steps (None: a re-scoring's row)
-            "steps_to_90pct_of_best_with_teacher": [teacher + s for s in to_90] if to_90 else None,
+            # each seed's own curve shifted by its teacher's steps (None: its validation never rose
+            # above 0; empty: a re-scoring's row)
+            "steps_to_90pct_of_best_with_teacher": [
+                t + s if s is not None else None for t, s in zip(teacher, to_90, strict=True)
+            ]
+            if to_90
+            else [],
             "latency_batch1_ms": {k: round(v, 3) for k, v in times[row.label].items()},
             "latency_vs_l1flow": round(times[row.label]["wall_ms"] / reference["wall_ms"], 2)
             if reference

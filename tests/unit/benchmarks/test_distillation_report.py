@@ -19,7 +19,7 @@ def _row(method: str, nfe: int, success: float, to_90: list[int] | None, teacher
         "success_once": {"mean": success, "n": 1},
         "per_seed": per_seed,
         "training_steps": [teacher + 1000],
-        "teacher_steps": teacher,
+        "teacher_steps": [teacher],
         "steps_to_90pct_of_best_with_teacher": to_90,
         "latency_batch1_ms": {"wall_ms": 2.0 * nfe, "cpu_ms": 2.0 * nfe},
         "latency_vs_l1flow": nfe / 2,
