@@ -120,11 +120,12 @@ def distillation_claim_rows(results: Path, load: Any) -> list[list[str]]:
         if ratios:
             lo, hi = min(ratios.values()), max(ratios.values())
             cells.append(f"training to 90 % of best (teacher's included): {lo:.2g}-{hi:.2g}× L1 Flow's")
-        seeds = own["success_once"]["n"]
+        counts = sorted({r["success_once"]["n"] for r in (own, *distilled.values())})
+        seeds = f"{counts[0]}-{counts[-1]}" if len(counts) > 1 else str(counts[0])
         rows.append(
             [
                 "comparable to distillation-based methods with 5-7× less training",
-                f"{d['task']} ({seeds} seed{'s' * (seeds != 1)}, `{path.name}`)",
+                f"{d['task']} ({seeds} seed{'s' * (seeds != '1')} per row, `{path.name}`)",
                 f"success_once {mine:.3f}" + (f"; {l1_steps:,.0f} steps to 90 % of best" if l1_steps else ""),
                 "; ".join(cells),
                 _verdict(below, ratios, names),
