@@ -84,7 +84,7 @@ def render_distillation(d: dict) -> str:
     missing = d.get("missing_rows") or []
     return text + (
         f"\n\n{d['task']}, {a['demos']} demonstrations, `network={a['network']}`; "
-        f"{len(a['seeds'])} seed(s), {a['eval_episodes']} test episodes each. Teachers (DDPM, EDM) and L1 "
+        f"{a['eval_episodes']} test episodes per seed. Teachers (DDPM, EDM) and L1 "
         "Flow train on the success grids' budget; a student trains from its own seed's teacher for the "
         "share of the teacher's budget its paper gives (CP 45 %, OneDP 2 %). Training steps: every stage "
         "the shipped weights went through, the teacher's to its shipped checkpoint included (the paper "
@@ -118,8 +118,9 @@ def distillation_claim_rows(results: Path, load: Any) -> list[list[str]]:
         ratios = {k: v / l1_steps for k, v in steps.items() if l1_steps and v is not None}
         cells = [f"{names[k]} NFE: {r['success_once']['mean']:.3f}" for k, r in distilled.items()]
         if ratios:
-            lo, hi = min(ratios.values()), max(ratios.values())
-            cells.append(f"training to 90 % of best (teacher's included): {lo:.2g}-{hi:.2g}× L1 Flow's")
+            lo, hi = f"{min(ratios.values()):.2g}", f"{max(ratios.values()):.2g}"
+            span = lo if lo == hi else f"{lo}-{hi}"
+            cells.append(f"training to 90 % of best (teacher's included): {span}× L1 Flow's")
         counts = sorted({r["success_once"]["n"] for r in (own, *distilled.values())})
         seeds = f"{counts[0]}-{counts[-1]}" if len(counts) > 1 else str(counts[0])
         rows.append(

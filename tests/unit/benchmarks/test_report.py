@@ -350,7 +350,7 @@ def test_the_saved_results_make_one_section_per_table_and_leave_no_file_out():
     text = (root / "benchmarks" / "RESULTS.md").read_text()
     headings = [line for line in text.splitlines() if line.startswith("#")]
     assert len(headings) == len(set(headings))  # no table repeated per file
-    assert len(text.splitlines()) <= 920  # one section per table, not per trial: a bound on growth
+    assert len(text.splitlines()) <= 945  # one section per table, not per trial: a bound on growth
     assert "## Other saved results" not in text  # every saved file is in a published table
     assert text.count("### Online fine-tuning") == 1
 
