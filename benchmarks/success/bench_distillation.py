@@ -15,8 +15,10 @@ validation curve, steps to 90 % of its best), the training steps each seed's wei
 counting its teacher's (the paper counts a student's epochs with its teacher's), steps to 90 % of the
 best counting the teacher's too, and the chunk latency at batch 1 on this machine's CPU: the seed-0
 checkpoint under the row's sampler, every row in turn each round (one torch thread), as a multiple of
-L1 Flow's in the same run. A grid with an unfinished row is refused (exit 2, listing each) unless
-``--partial``; a row with no finished run is left out and named.
+L1 Flow's in the same run. Time it on an idle machine: beside two busy jobs, DDPM-100's multiple of
+L1 Flow's came out three times the idle one (long calls are preempted more). A grid with an
+unfinished row is refused (exit 2, listing each) unless ``--partial``; a row with no finished run is
+left out and named.
 """
 
 from __future__ import annotations
