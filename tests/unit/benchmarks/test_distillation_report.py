@@ -12,7 +12,7 @@ from benchmarks.report.distillation import distillation_claim_rows, render_disti
 
 
 def _row(method: str, nfe: int, success: float, to_90: list[int] | None, teacher: int = 0) -> dict:
-    per_seed = [{"seed": 0, "success_once": success, "episodes": 100}]
+    per_seed = [{"seed": 0, "success_once": success, "value": success, "episodes": 100}]
     return {
         "method": method,
         "nfe": nfe,
@@ -67,3 +67,15 @@ def test_the_section_shows_each_row_with_its_teacher_and_the_rows_left_out(tmp_p
     assert [line.split(" | ")[1] for line in lines] == ["`edm`", "`consistency`", "`l1flow`"]
     assert "| 13,000 (12,000 teacher) | 6,000 | 2 (0.5×) |" in lines[1]
     assert "Rows without a finished evaluation: `onedp_d`." in text
+
+
+def test_pushts_score_decides_by_its_mean_and_heads_each_row(tmp_path):
+    _file(tmp_path, 0.9, 0.9, 6000)
+    path = tmp_path / "distillation_robosuite_can.json"
+    data = _load(path)
+    for label, score in (("edm", 0.7), ("consistency", 0.8), ("l1flow", 0.75)):
+        data["rows"][label].update(metric="score", score={"mean": score, "n": 1})
+    path.write_text(json.dumps(data))
+    (row,) = distillation_claim_rows(tmp_path, _load)
+    assert row[2].startswith("score 0.750") and row[-1] == "below Consistency Policy 1"
+    assert "| score 0.800 |" in render_distillation(data)
