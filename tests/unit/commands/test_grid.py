@@ -174,3 +174,50 @@ def test_the_peginsertion_grid_runs_every_method_on_the_mlp_at_maniskills_budget
     assert full.hydra.sweep.dir == "runs/grid/success_peginsertion" and full.resume == "auto"
     assert (full.task.name, full.network.name, full.demos.num) == ("maniskill_peginsertion", "mlp", 100)
     assert (full.train.steps, full.train.eval_every, full.eval.episodes) == (100000, 10000, 100)
+
+
+@pytest.mark.parametrize(
+    ("grid", "task", "demos", "teachers"),
+    [
+        ("distillation_can", "robosuite_can", ("expert", 100), {"edm", "ddpm"}),
+        ("distillation_square", "robosuite_square", ("expert", 200), {"edm", "ddpm"}),
+        ("distillation_square_mh", "robosuite_square", ("mixed", 200), {"edm", "ddpm", "l1flow"}),
+        ("distillation_pusht", "pusht", ("expert", 200), {"edm", "ddpm"}),
+    ],
+)
+def test_a_distillation_grid_trains_its_teachers_and_each_distill_option_its_students(
+    grid, task, demos, teachers
+):
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    from l1flow_rl.commands.cli import _compose, _create_hydra, _sweep_jobs
+
+    hydra = _create_hydra("train")
+    jobs = _sweep_jobs(hydra, [f"+grid={grid}"])
+    full = _compose(hydra, jobs[0], RunMode.MULTIRUN)
+    assert full.hydra.sweep.dir == f"runs/grid/{grid}" and full.network.name == "mlp"
+    assert (full.task.name, full.demos.quality, full.demos.num) == (task, *demos)
+    assert {o.split("=")[1] for job in jobs for o in job if o.startswith("policy=")} == teachers
+    # each student from its own seed's teacher in the grid's folder, on its paper's share of the budget
+    students = {
+        "cp": ({"consistency"}, "edm", 5400, "edm_consistency", 1000.0),
+        "onedp_edm": ({"onedp_d", "onedp_s"}, "edm", 240, "onedp_edm", 1000.0),
+        "onedp_ddpm": ({"onedp_d_ddpm", "onedp_s_ddpm"}, "ddpm", 240, "onedp_ddpm", 1.0),
+    }
+    try:
+        for distill, (names, teacher, steps, sampler, scale) in students.items():
+            jobs = _sweep_jobs(hydra, [f"+grid={grid}", f"+distill={distill}"])
+            assert len(jobs) == 3 * len(names)
+            seen = set()
+            for job in jobs:
+                cfg = _compose(hydra, job, RunMode.MULTIRUN)
+                HydraConfig.instance().set_config(cfg)  # as in the job: ${hydra:sweep.dir} resolves
+                seed = cfg.seed
+                want = f"runs/grid/{grid}/{task}/{teacher}/seed{seed}/checkpoints/best.pt"
+                assert cfg.teacher == want and cfg.train.steps == steps
+                assert (cfg.policy.sampler, cfg.network.timestep_scale) == (sampler, scale)
+                seen.add(cfg.policy.name)
+            assert seen == names
+    finally:
+        HydraConfig.instance().cfg = None  # the singleton as the other tests expect it
