@@ -138,8 +138,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(parser, argv)
     torch.set_num_threads(1)
     roots = [Path(g).as_posix() for g in args.grids]
-    runs = [r for g in args.grids for r in grid_runs(g) if r.setting("policy.name") in POLICIES]
-    tasks = sorted({r.setting("task.name") for r in grid_runs(args.grids[0])})
+    by_grid = [grid_runs(g) for g in args.grids]  # each folder walked once
+    runs = [r for found in by_grid for r in found if r.setting("policy.name") in POLICIES]
+    tasks = sorted({r.setting("task.name") for r in by_grid[0]})
     if len(tasks) != 1:
         print(f"{roots[0]}: expected the runs of one task, found {tasks or 'none'}", file=sys.stderr)
         return 2
