@@ -129,6 +129,15 @@ def _teacher_steps(evaluation: dict[str, Any]) -> int:
     return sum(s["steps"] for s in evaluation.get("ledger") or [] if s["stage"] == "teacher")
 
 
+def _tested_steps(evaluation: dict[str, Any]) -> int:
+    """Every stage the tested weights went through: a training run's test scores the step its
+    validation chose (``selection``), which may precede its last; a re-scoring reads its checkpoint's
+    ledger."""
+    if "selection" in evaluation:
+        return _teacher_steps(evaluation) + int(evaluation["selection"]["step"])
+    return int(evaluation.get("total_steps_with_teacher") or evaluation["step"])
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("grids", nargs="+", help="the distillation grid's folder, then L1 Flow's grid")
@@ -176,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
             "nfe": nfe[row.label],
             **block,
             # every stage the shipped weights went through, the teacher's to its checkpoint included
-            "training_steps": [int(e.get("total_steps_with_teacher") or e["step"]) for e in evaluations],
+            "training_steps": [_tested_steps(e) for e in evaluations],
             "teacher_steps": teacher,
             # each seed's own curve shifted by its teacher's steps (None: its validation never rose
             # above 0; empty: a re-scoring's row)

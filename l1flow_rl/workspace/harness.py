@@ -221,8 +221,11 @@ class Run:
         self.evals: list[dict[str, Any]] = []
         #: other lists the job keeps (e.g. collection rounds): checkpointed and in history.json
         self.records: dict[str, list[Any]] = {}
-        #: entries the job adds to eval.json and summary.json (e.g. its training ledger)
+        #: entries the job adds to eval.json and summary.json
         self.report_extra: dict[str, Any] = {}
+        #: entries that depend on which weights the test scored (e.g. the training ledger): called with
+        #: their step, which is an earlier one than the run's when validation chose ``best.pt``
+        self.report_for_weights: Callable[[int], dict[str, Any]] | None = None
         #: keys of ``report_extra`` that the files keep but the printed summary leaves out
         self.report_unprinted: set[str] = set()
         self.best = -math.inf
@@ -552,8 +555,11 @@ class Run:
 
     def _report(self, actor: Any, summary: dict[str, Any], load_chosen: Any, plot: Any) -> dict[str, Any]:
         step, ev = self.step, self.evaluator
+        selection = ev.selection(self.evals, step, rule=self.rule) if ev is not None else {"step": step}
+        extra = dict(self.report_extra)
+        if self.report_for_weights is not None:
+            extra.update(self.report_for_weights(selection["step"]))
         if ev is not None:
-            selection = ev.selection(self.evals, step, rule=self.rule)
             chosen = actor
             if selection["step"] != step:
                 load = load_chosen or (lambda p: load_actor(p, use_ema=True, map_location=self.device)[0])
@@ -564,7 +570,7 @@ class Run:
             ci95 = {k: list(v) for k, v in result.get("ci95", {}).items() if k.startswith("success")}
             self.evals.append({**ev.history_row(result), "weights_step": selection["step"], "ci95": ci95})
             result = {**result, "selection": selection, "sampler": sampler_record(chosen)}
-            result.update(self.report_extra)
+            result.update(extra)
             result["provenance"] = run_provenance(self.commits, self.resumed_at)
             (self.run_dir / "eval.json").write_text(json.dumps(result, indent=2))
             summary.update(
@@ -573,7 +579,7 @@ class Run:
                 eval_episodes=result["episodes"],
                 chunk_latency_ms_median=result.get("latency_ms_median"),
             )
-        summary.update(self.report_extra)
+        summary.update(extra)
         # Seconds over every invocation of the run; CPU is the budget when runs share the machine.
         summary.update(self.clock.summary())
         summary["machine"] = machine_info(self.device)  # threads and load as this invocation ended

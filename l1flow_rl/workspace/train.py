@@ -138,9 +138,14 @@ def run_train(cfg: DictConfig) -> int:
                 metrics = trainer.train_step(buffer.sample().to(device))
                 run.step_done(trainer.step, metrics, trainer.ema_actor, last=trainer.step == tcfg.steps)
         summary = {"task": cfg.task.name, "policy": pcfg.name, "steps": trainer.step, "demos": cfg.demos.num}
-        stages = [*ledger, own_stage(pcfg.name, trainer.step, tcfg.batch_size)]
-        run.records["ledger"] = stages  # history.json (and the final checkpoints)
-        run.report_extra.update(ledger=stages, total_steps_with_teacher=total_steps(stages))
+        run.records["ledger"] = [*ledger, own_stage(pcfg.name, trainer.step, tcfg.batch_size)]  # history.json
+
+        def tested_ledger(weights_step: int) -> dict[str, Any]:
+            # the stages the tested weights went through: best.pt's, when validation chose an earlier step
+            stages = [*ledger, own_stage(pcfg.name, weights_step, tcfg.batch_size)]
+            return {"ledger": stages, "total_steps_with_teacher": total_steps(stages)}
+
+        run.report_for_weights = tested_ledger
         if teacher is None:  # a plain run's ledger is its own steps: in the files, not worth a row
             run.report_unprinted.update(("ledger", "total_steps_with_teacher"))
         run.finish(trainer.ema_actor, summary)

@@ -51,6 +51,7 @@ def run_distill(cfg, crash_at: int | None = None, nan_at: int | None = None) -> 
             return {"model": actor.state_dict(), "ema": None, "optimizer": optim.state_dict(), "step": step}
 
         run.begin(state, load, step=lambda: step, total=STEPS)
+        run.report_for_weights = lambda weights_step: {"weights_trained_steps": weights_step}
         while step < STEPS:
             if step == crash_at:
                 raise RuntimeError(f"killed at step {step}")
@@ -94,7 +95,10 @@ def test_a_minimal_job_keeps_best_from_validation_and_writes_its_summary(straigh
     chosen = max(val, key=lambda e: e["success_once"])["step"]
     best = load_checkpoint(straight / "checkpoints" / "best.pt")
     assert best["step"] == chosen
-    assert json.loads((straight / "eval.json").read_text())["selection"]["step"] == chosen
+    tested = json.loads((straight / "eval.json").read_text())
+    assert tested["selection"]["step"] == chosen
+    # what the job reports of the tested weights is of best.pt's step, not of the run's last
+    assert tested["weights_trained_steps"] == summary["weights_trained_steps"] == chosen
     latest = load_checkpoint(straight / "checkpoints" / "latest.pt")
     assert latest["step"] == STEPS and latest["config"]["run_dir"] == str(straight)
     assert (straight / "config.yaml").is_file() and (straight / "loss.png").is_file()
