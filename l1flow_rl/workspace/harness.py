@@ -221,12 +221,11 @@ class Run:
         self.evals: list[dict[str, Any]] = []
         #: other lists the job keeps (e.g. collection rounds): checkpointed and in history.json
         self.records: dict[str, list[Any]] = {}
-        #: entries the job adds to eval.json and summary.json
-        self.report_extra: dict[str, Any] = {}
-        #: entries that depend on which weights the test scored (e.g. the training ledger): called with
-        #: their step, which is an earlier one than the run's when validation chose ``best.pt``
+        #: entries the job adds to eval.json and summary.json, of the weights the test scored (e.g. the
+        #: training ledger): called with their step, an earlier one than the run's when validation chose
+        #: ``best.pt``
         self.report_for_weights: Callable[[int], dict[str, Any]] | None = None
-        #: keys of ``report_extra`` that the files keep but the printed summary leaves out
+        #: keys of those entries that the files keep but the printed summary leaves out
         self.report_unprinted: set[str] = set()
         self.best = -math.inf
         self._validates = bool(cfg.eval.enabled)  # the same on every rank (the evaluator: rank 0 only)
@@ -556,9 +555,7 @@ class Run:
     def _report(self, actor: Any, summary: dict[str, Any], load_chosen: Any, plot: Any) -> dict[str, Any]:
         step, ev = self.step, self.evaluator
         selection = ev.selection(self.evals, step, rule=self.rule) if ev is not None else {"step": step}
-        extra = dict(self.report_extra)
-        if self.report_for_weights is not None:
-            extra.update(self.report_for_weights(selection["step"]))
+        extra = self.report_for_weights(selection["step"]) if self.report_for_weights is not None else {}
         if ev is not None:
             chosen = actor
             if selection["step"] != step:
